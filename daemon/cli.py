@@ -1,3 +1,95 @@
-def main() -> int:
-    print("hi")
-    return 0
+"""The ``lunad`` command: one entry point, thin sub-commands on a shared core.
+
+Each sub-command module offers ``add_parser(subparsers)`` and ``run(args) -> int`` and
+imports its heavy dependencies inside ``run``, so ``lunad --help`` and the daemon's
+start stay quick. Nothing is printed while parsing; diagnostics go to logging
+(stderr), a command's output to stdout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+from collections.abc import Sequence
+
+SUBCOMMANDS = (
+    "lunad.daemon.cmd_serve",
+    "lunad.daemon.cmd_sim",
+    "lunad.daemon.cmd_watch",
+    "lunad.daemon.cmd_demo",
+    "lunad.daemon.cmd_sweep",
+    "lunad.daemon.cmd_eval",
+)
+
+EPILOG = """\
+examples:
+  lunad sim                                  # virtual TF-Luna on a pty
+  lunad serve --device /dev/serial0          # the daemon, publishing on tcp://127.0.0.1:7781
+  lunad watch --connect tcp://127.0.0.1:7781 # live view of the stream
+  lunad demo                                 # all three together for a few seconds
+
+Every sub-command has --help with examples.
+"""
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse with a settable exit code for usage errors (``serve`` uses 78)."""
+
+    usage_exit_code = 2
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.print_usage(sys.stderr)
+        self.exit(self.usage_exit_code, f"{self.prog}: error: {message}\n")
+
+
+def build_parser() -> ArgumentParser:
+    """The full ``lunad`` parser with every sub-command that is installed."""
+    parser = ArgumentParser(
+        prog="lunad",
+        description="Edge daemon for the Benewake TF-Luna LiDAR.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    from lunad import daemon
+
+    parser.add_argument("--version", action="version", version=f"lunad {daemon.__version__}")
+    sub = parser.add_subparsers(
+        title="commands", metavar="COMMAND", parser_class=ArgumentParser, required=True
+    )
+    for name in SUBCOMMANDS:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name != name:
+                raise
+            continue
+        module.add_parser(sub)
+    return parser
+
+
+def setup_logging(level: str = "info") -> None:
+    """One line per event on stderr; timestamps only on a terminal (journald adds its own)."""
+    fmt = "%(levelname)s %(name)s: %(message)s"
+    if sys.stderr.isatty():
+        fmt = "%(asctime)s " + fmt
+    logging.basicConfig(level=level.upper(), format=fmt, stream=sys.stderr, force=True)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``lunad`` console script."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    setup_logging(getattr(args, "log_level", None) or "info")
+    try:
+        code: int = args.func(args)
+    except KeyboardInterrupt:
+        return 130
+    except BrokenPipeError:
+        return 0
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

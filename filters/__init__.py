@@ -2,14 +2,25 @@
 
 from lunad.filters.config import AMP_REF_DEFAULT, FilterConfig
 from lunad.filters.estimate import Estimate, Reason, Status, Zone
+from lunad.filters.kalman import ACCEPTED, OUTLIER, RESTARTED, Tracker
+from lunad.filters.lux import LuxEstimator
+from lunad.filters.policy import DropoutPolicy
 from lunad.filters.range_filter import RangeFilter
+from lunad.filters.zone import ZoneClassifier
 
 __all__ = [
+    "ACCEPTED",
     "AMP_REF_DEFAULT",
+    "OUTLIER",
+    "RESTARTED",
+    "DropoutPolicy",
     "Estimate",
     "FilterConfig",
+    "LuxEstimator",
     "RangeFilter",
     "Reason",
     "Status",
+    "Tracker",
     "Zone",
+    "ZoneClassifier",
 ]

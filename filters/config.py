@@ -1,8 +1,12 @@
-"""Filter settings: plain values, validated at the daemon's config boundary."""
+"""Filter settings: plain values, validated at the daemon's config boundary.
+
+Units are in the names: metres (``_m``), seconds (``_s``), lux. Every default cites
+where it comes from; the ones we chose ourselves say so and say why.
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 AMP_REF_DEFAULT = 2000.0
 """Amp for S = 1 until ``lunad calibrate`` measures it (white matte target, normal
@@ -16,6 +20,25 @@ AMP_MIN = 100  # weak-signal threshold, M05 p.16
 AMP_AMBIENT = 32768  # amp above this means ambient overexposure, M05 p.14
 AMP_SATURATED = 0xFFFF  # overexposure, M05 p.14
 
+SIGMA0_DEFAULT_M = 0.004
+"""sigma0 of paper eq. 2, metres, refitted to the datasheet repeatability table
+(M05 p.9 Table 2, TFLUNA.md section 5): sigma0 / S with S = amp / 2000 gives 0.4 cm
+at amp 2000 (0.49 cm with the 1 cm quantisation, table: 0.5 cm), 0.8 cm at amp
+1000 (table: 1 cm) and 2 cm at amp 400 (table: 2 cm). The paper's own 0.01 would
+be 1 cm at S = 1, twice the datasheet."""
+
+K_DEFAULT_M_PER_LUX = 2.5e-7
+"""k of paper eq. 2, metres per lux. The paper's 1e-4 m/lux would make sigma 5 m at
+50 klux, which contradicts its own Table I; we keep the structure and choose k so
+that sigma at S = 1 grows about 4.6x from dark to 60 klux, the ratio of Table I's
+mean errors for > 50 klux (6.9 cm) and < 5 klux (1.5 cm)."""
+
+RESOLUTION_M = 0.01  # 1 cm output resolution, DS p.2; M05 p.9
+
+LUX_STABLE_MAX = 10_000.0  # paper section V / DESIGN.md: stable region lux < 10 klux
+LUX_HIGH_AMBIENT = 20_000.0  # paper section IV.A and Table I: degradation above 20 klux
+S_STABLE_MIN = 0.35  # paper's stable region R > 0.5 and angle < 45 deg: R cos(theta) > 0.354
+
 
 @dataclass(frozen=True, slots=True)
 class FilterConfig:
@@ -23,10 +46,39 @@ class FilterConfig:
 
     Attributes:
         amp_ref: amp that corresponds to S = 1 (see AMP_REF_DEFAULT).
-        s_min: dropout threshold on S.
+        s_min: dropout threshold on S (paper section III).
         amp_min: readings with a lower amp are weak (the sensor's own rule).
         min_range_m, max_range_m: range gate, metres.
-        stale_after_s: seconds without a valid reading before readings are `stale`.
+        stale_after_s: seconds without an accepted reading before output is ``stale``
+            (a dropout), and after which the next accepted reading restarts the track.
+        sigma0_m: paper eq. 2 noise at zero ambient light and S = 1, metres.
+        k_m_per_lux: paper eq. 2 growth of the noise with ambient light, metres per lux.
+        resolution_m: output quantisation of the sensor, metres; its variance
+            resolution^2 / 12 is added to every reading's variance.
+        accel_psd: process noise of the constant-velocity model, the spectral
+            density of white acceleration, m^2/s^3. Tuned with ``lunad eval``.
+        init_speed_sigma_m_s: one-sigma prior on the target's speed when a track
+            starts, metres per second.
+        gate_sigmas: innovation gate; a reading whose innovation exceeds this many
+            predicted sigmas is an ``outlier``.
+        step_confirm: this many consecutive outliers that agree with each other are
+            a real step: the track restarts there.
+        lux_tau_s: time constant of the lux estimator, seconds (converges within
+            about 4 tau).
+        lux_clip_sigmas: residuals beyond this many predicted sigmas are clipped
+            before they enter the lux estimator (robustness to spikes).
+        lux_init: ambient light assumed when a track starts, lux.
+        sigma_floor_m: the published sigma never goes below this, metres: the 1 cm
+            output steps leave a bias no averaging removes (resolution / sqrt(12)).
+        hysteresis: relative band around the S, lux and zone thresholds: a state is
+            entered at the threshold and left only this fraction beyond it.
+        range_hysteresis_m: band of the range gate, metres.
+        lux_high_ambient: estimated lux above which output is ``degraded`` with
+            reason ``high_ambient``.
+        lux_stable_max, s_stable_min, sigma_stable_max_m: the ``stable`` zone needs
+            all three (paper's stable region, section V).
+        lux_unreliable, s_unreliable, sigma_unreliable_m: any one makes the zone
+            ``unreliable``.
     """
 
     amp_ref: float = AMP_REF_DEFAULT
@@ -35,3 +87,37 @@ class FilterConfig:
     min_range_m: float = MIN_RANGE_M
     max_range_m: float = MAX_RANGE_M
     stale_after_s: float = 0.5
+    sigma0_m: float = SIGMA0_DEFAULT_M
+    k_m_per_lux: float = K_DEFAULT_M_PER_LUX
+    resolution_m: float = RESOLUTION_M
+    accel_psd: float = 0.5
+    init_speed_sigma_m_s: float = 1.0
+    gate_sigmas: float = 4.0
+    step_confirm: int = 2
+    lux_tau_s: float = 0.125
+    lux_clip_sigmas: float = 2.5
+    lux_init: float = 0.0
+    sigma_floor_m: float = 0.003
+    hysteresis: float = 0.2
+    range_hysteresis_m: float = 0.05
+    lux_high_ambient: float = LUX_HIGH_AMBIENT
+    lux_stable_max: float = LUX_STABLE_MAX
+    s_stable_min: float = S_STABLE_MIN
+    sigma_stable_max_m: float = 0.02
+    lux_unreliable: float = 50_000.0
+    s_unreliable: float = 0.1
+    sigma_unreliable_m: float = 0.10
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.name in ("lux_init", "hysteresis", "range_hysteresis_m", "accel_psd"):
+                ok = value >= 0
+            else:
+                ok = value > 0
+            if not ok:
+                raise ValueError(f"FilterConfig.{f.name} must be positive, got {value!r}")
+        if self.min_range_m >= self.max_range_m:
+            raise ValueError("FilterConfig.min_range_m must be below max_range_m")
+        if self.step_confirm < 1:
+            raise ValueError("FilterConfig.step_confirm must be at least 1")

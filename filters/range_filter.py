@@ -1,17 +1,71 @@
-"""The per-frame cleaning pipeline: hard gates only, until the adaptive filter lands."""
+"""The per-frame cleaning pipeline: gates, adaptive Kalman filter, lux estimate, zone.
+
+How this works, per frame (DESIGN.md "Data flow of one reading"):
+
+1. S = amp / amp_ref (paper eq. 1, with amp_ref from calibration).
+2. Hard gates with hysteresis (policy.py) -> ``dropout``. A reading inside a
+   hysteresis band is still fed to the filter, only not published.
+3. Constant-velocity Kalman filter (kalman.py). Each reading's variance is
+   r = ((sigma0 + k L_hat) / S)^2 + resolution^2 / 12: the paper's eqs 2-3 with
+   the lux estimate in place of the unknown L, plus the 1 cm quantisation
+   (our addition; it dominates at high S). The innovation gate marks isolated
+   spikes ``outlier``: the frame publishes the prediction, ``degraded``.
+4. Lux estimator (lux.py) learns sigma0 + k L from the same innovations.
+5. ``stale`` when no reading has been accepted for ``stale_after_s``; the next
+   accepted reading then restarts the track.
+6. Zone (zone.py) from L_hat, S and the published sigma.
+
+The published sigma is sqrt(P00), floored at ``sigma_floor_m`` (the 1 cm output
+steps leave a bias that averaging cannot remove).
+"""
 
 from __future__ import annotations
 
-from lunad.filters.config import AMP_AMBIENT, AMP_SATURATED, FilterConfig
-from lunad.filters.estimate import Estimate, Reason, Status, Zone
+import math
+
+from lunad.filters.config import FilterConfig
+from lunad.filters.estimate import Estimate, Reason, Status
+from lunad.filters.kalman import OUTLIER, Tracker
+from lunad.filters.lux import LuxEstimator
+from lunad.filters.policy import DropoutPolicy
+from lunad.filters.zone import ZoneClassifier
+
+_OUTLIER = (Reason.OUTLIER,)
+_OUTLIER_AMBIENT = (Reason.OUTLIER, Reason.HIGH_AMBIENT)
+_AMBIENT = (Reason.HIGH_AMBIENT,)
+_NONE: tuple[Reason, ...] = ()
+_STALE = (Reason.STALE,)
 
 
 class RangeFilter:
-    """Turns raw readings into published estimates; pure, one call per frame."""
+    """Turns raw readings into published estimates; pure, one call per frame.
+
+    Not thread-safe: one instance per sensor, called from the read loop.
+    """
 
     def __init__(self, config: FilterConfig | None = None) -> None:
-        self.config = config or FilterConfig()
-        self._inv_amp_ref = 1.0 / self.config.amp_ref
+        self.config = c = config or FilterConfig()
+        self._inv_amp_ref = 1.0 / c.amp_ref
+        self._q_m2 = c.resolution_m * c.resolution_m / 12.0
+        self._stale_ns = round(c.stale_after_s * 1e9)
+        self._floor = c.sigma_floor_m
+        self.policy = DropoutPolicy(c)
+        self.tracker = Tracker(c.accel_psd, c.gate_sigmas, c.step_confirm, c.init_speed_sigma_m_s)
+        self.lux = LuxEstimator(c)
+        self.zones = ZoneClassifier(c)
+        self._last_t_ns: int | None = None
+        self._last_accept_ns = 0
+        self._have_lux = False
+
+    def reset(self) -> None:
+        """Forget all state (after a reconnect)."""
+        self.policy.reset()
+        self.tracker.reset()
+        self.lux.reset()
+        self.zones.reset()
+        self._last_t_ns = None
+        self._last_accept_ns = 0
+        self._have_lux = False
 
     def step(self, raw_m: float | None, amp: int, t_mono_ns: int) -> Estimate:
         """Clean one reading.
@@ -20,22 +74,75 @@ class RangeFilter:
             raw_m: distance the sensor reported, metres, or None when it reported none.
             amp: the sensor's signal strength.
             t_mono_ns: monotonic receive time, nanoseconds.
-        """
-        c = self.config
-        s = amp * self._inv_amp_ref
-        reasons: list[Reason] = []
-        if amp == AMP_SATURATED:
-            reasons.append(Reason.SATURATED)
-        elif amp > AMP_AMBIENT:
-            reasons.append(Reason.HIGH_AMBIENT)
-        elif amp < c.amp_min or s < c.s_min:
-            reasons.append(Reason.WEAK_SIGNAL)
-        if raw_m is None or not c.min_range_m <= raw_m <= c.max_range_m:
-            if not reasons:
-                reasons.append(Reason.OUT_OF_RANGE)
-        if reasons:
-            return Estimate(None, None, None, s, Status.DROPOUT, tuple(reasons), Zone.UNRELIABLE)
-        return Estimate(raw_m, None, None, s, Status.OK, (), Zone.STABLE)
 
-    def reset(self) -> None:
-        """Forget all state (after a reconnect)."""
+        Returns:
+            The estimate to publish for this frame.
+        """
+        return self._step(raw_m, amp, t_mono_ns, 0.0)
+
+    def step_known_sigma(
+        self, raw_m: float | None, amp: int, t_mono_ns: int, sigma_m: float
+    ) -> Estimate:
+        """Like :meth:`step`, with the reading's noise given instead of estimated.
+
+        For baselines (a fixed-noise filter, an oracle that knows the simulator's
+        true per-reading sigma): the same gates, Kalman filter and step logic, only
+        the measurement variance differs. ``sigma_m`` excludes the quantisation,
+        which is added as in :meth:`step`. The lux estimator is not updated.
+        """
+        return self._step(raw_m, amp, t_mono_ns, sigma_m)
+
+    def _step(self, raw_m: float | None, amp: int, t: int, sigma_known: float) -> Estimate:
+        s = amp * self._inv_amp_ref
+        last = self._last_t_ns
+        if last is None:
+            self._last_accept_ns = t
+            dt = 0.0
+        else:
+            dt = (t - last) * 1e-9
+        self._last_t_ns = t
+        pol = self.policy
+        tr = self.tracker
+        reasons = pol.gate(raw_m, amp, s)
+        outlier = False
+        if pol.usable and raw_m is not None:
+            if sigma_known > 0.0:
+                r = sigma_known * sigma_known + self._q_m2
+            else:
+                r = self.lux.c2 / (s * s) + self._q_m2
+            if not tr.active or t - self._last_accept_ns > self._stale_ns:
+                tr.start(raw_m, r)
+            else:
+                tr.predict(dt)
+                if sigma_known <= 0.0:
+                    self.lux.update(raw_m - tr.x, tr.p00, s, self._q_m2, dt)
+                    self._have_lux = True
+                outlier = tr.update(raw_m, r) == OUTLIER
+            if not outlier:
+                self._last_accept_ns = t
+        elif tr.active:
+            tr.predict(dt)
+        lux = self.lux.lux if self._have_lux else None
+        if reasons or not tr.active:
+            if t - self._last_accept_ns > self._stale_ns:
+                reasons = (*reasons, Reason.STALE) if reasons else _STALE
+            return Estimate(None, None, lux, s, Status.DROPOUT, reasons, self.zones.dropout())
+        sigma = math.sqrt(tr.p00)
+        if sigma < self._floor:
+            sigma = self._floor
+        ambient = pol.high_ambient(lux) if lux is not None else False
+        zone = self.zones.classify(lux if lux is not None else 0.0, s, sigma)
+        if outlier:
+            return Estimate(
+                tr.x,
+                sigma,
+                lux,
+                s,
+                Status.DEGRADED,
+                _OUTLIER_AMBIENT if ambient else _OUTLIER,
+                zone,
+            )
+        if ambient:
+            return Estimate(tr.x, sigma, lux, s, Status.DEGRADED, _AMBIENT, zone)
+        return Estimate(tr.x, sigma, lux, s, Status.OK, _NONE, zone)
+

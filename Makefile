@@ -1,0 +1,31 @@
+# lunad: the two set-up commands are `make demo` and `make test`.
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test lint bench clean
+
+$(PY):
+	$(PYTHON) -m venv $(VENV)
+
+$(STAMP): pyproject.toml | $(PY)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+## demo: virtual TF-Luna -> lunad serve -> live view, for a few seconds
+demo: $(STAMP)
+	$(VENV)/bin/lunad demo
+
+## test: lint and the default test run (benchmarks and soak are opt-in)
+test: $(STAMP)
+	$(VENV)/bin/ruff check protocol filters sim daemon tests
+	$(VENV)/bin/python -m pytest
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check protocol filters sim daemon tests
+	$(VENV)/bin/ruff format --check protocol filters sim daemon tests
+
+clean:
+	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache .hypothesis

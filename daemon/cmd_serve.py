@@ -1,0 +1,87 @@
+"""``lunad serve``: the daemon."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+DESCRIPTION = """\
+Read a TF-Luna, clean every reading and publish it over ZeroMQ.
+
+Each parsed frame becomes one message on topic range/<sensor>; health/<sensor>
+follows about once a second and at every state change. The daemon keeps running
+through garbage on the line, unplug/replug and a silent sensor, and reports them
+on health. Flags override the config file. A bad file or flag exits with code 78.
+"""
+
+EPILOG = """\
+examples:
+  lunad serve --device /dev/serial0
+  lunad serve --device /dev/ttyUSB0 --publish ipc:///run/lunad/front.sock --name front
+  lunad serve --config /etc/lunad/front.toml
+  lunad serve --device spy:///dev/ttyUSB0     # pyserial URL: hex dump of the traffic
+"""
+
+
+def add_parser(sub: Any) -> None:
+    """Register ``serve``."""
+    p = sub.add_parser(
+        "serve",
+        help="run the daemon",
+        description=DESCRIPTION,
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.usage_exit_code = 78
+    p.add_argument("--config", metavar="FILE", help="TOML config file")
+    p.add_argument("--device", help="serial device path or pyserial URL (default /dev/serial0)")
+    p.add_argument("--baud", help="baud rate (default 115200)")
+    p.add_argument("--publish", metavar="ENDPOINT", help="ZeroMQ endpoint to bind")
+    p.add_argument("--name", help="sensor name used in topics (default tfluna)")
+    p.add_argument("--rate", metavar="HZ", help="frame rate to set at start (default 100)")
+    p.add_argument(
+        "--no-configure",
+        action="store_true",
+        help="do not query the version or set rate and output at start",
+    )
+    p.add_argument("--log-level", choices=("debug", "info", "warning", "error"))
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Validate the config, bind, and serve until SIGTERM/SIGINT."""
+    from lunad.daemon.config import load_config
+    from lunad.daemon.errors import EX_CONFIG, EX_UNAVAILABLE, ConfigError, PublishError
+
+    overrides: dict[str, Any] = {
+        "source.device": args.device,
+        "source.baud": args.baud,
+        "publish.endpoint": args.publish,
+        "sensor.name": args.name,
+        "sensor.frame_rate_hz": args.rate,
+        "sensor.configure": False if args.no_configure else None,
+        "log_level": args.log_level,
+    }
+    try:
+        cfg = load_config(args.config, overrides)
+    except ConfigError as exc:
+        print(f"lunad serve: {exc}", file=sys.stderr)
+        return EX_CONFIG
+
+    from lunad.daemon.cli import setup_logging
+    from lunad.daemon.publisher import Publisher
+    from lunad.daemon.serve import Daemon
+
+    setup_logging(cfg.log_level)
+    daemon = Daemon(cfg)
+    daemon.install_signal_handlers()
+    try:
+        publisher = Publisher(cfg.publish.endpoint, cfg.publish.sndhwm)
+    except PublishError as exc:
+        print(f"lunad serve: {exc}", file=sys.stderr)
+        return EX_UNAVAILABLE
+    try:
+        return daemon.run(publisher)
+    finally:
+        publisher.close()

@@ -1,0 +1,151 @@
+"""``lunad watch``: a live, readable view of a daemon's stream."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import dataclass
+from typing import Any, TextIO
+
+DESCRIPTION = """\
+Subscribe to a lunad daemon and print its stream: one line per reading (or every
+Nth), health lines as they come, or one refreshing status line. Reports messages
+lost on the way (gaps in seq) when it stops.
+"""
+
+EPILOG = """\
+examples:
+  lunad watch --connect tcp://127.0.0.1:7781
+  lunad watch --connect ipc:///run/lunad/front.sock --every 25
+  lunad watch --connect tcp://127.0.0.1:7781 --refresh
+  lunad watch --connect tcp://127.0.0.1:7781 --json --count 100 > readings.jsonl
+"""
+
+
+def add_parser(sub: Any) -> None:
+    """Register ``watch``."""
+    p = sub.add_parser(
+        "watch",
+        help="live view of a daemon's stream",
+        description=DESCRIPTION,
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument(
+        "--connect",
+        metavar="ENDPOINT",
+        default="tcp://127.0.0.1:7781",
+        help="where the daemon publishes (default tcp://127.0.0.1:7781)",
+    )
+    p.add_argument("--sensor", help="only this sensor's messages")
+    p.add_argument("--every", type=int, default=1, metavar="N", help="print every Nth reading")
+    p.add_argument("--refresh", action="store_true", help="one refreshing status line")
+    p.add_argument("--json", action="store_true", help="print the raw JSON messages")
+    p.add_argument("--count", type=int, metavar="N", help="stop after N readings")
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    p.set_defaults(func=run)
+
+
+def format_range(msg: Any) -> str:
+    """One line for a range message."""
+    rng = f"{msg.range_m:7.3f} m" if msg.range_m is not None else "      - m"
+    sig = f"±{msg.sigma_m * 100:4.1f} cm" if msg.sigma_m is not None else "        "
+    raw = f"{msg.raw_m:5.2f}" if msg.raw_m is not None else "    -"
+    lux = f"{msg.lux_est:7.0f}" if msg.lux_est is not None else "      -"
+    reasons = ",".join(msg.reasons)
+    return (
+        f"#{msg.seq:<7d} range {rng} {sig}  raw {raw} m  amp {msg.amp:5d}  "
+        f"S {msg.strength:5.2f}  lux {lux}  {msg.status:8s} {msg.zone:10s} {reasons}"
+    )
+
+
+def format_health(msg: Any) -> str:
+    """One line for a health message."""
+    fw = msg.firmware or "?"
+    err = f"  last error: {msg.last_error}" if msg.last_error else ""
+    return (
+        f"[health] {msg.state:12s} {msg.fps:6.1f} fps  frames {msg.frames}  "
+        f"checksum errors {msg.checksum_errors}  discarded {msg.bytes_discarded} B  "
+        f"dropout {msg.dropout_ratio:.1%}  dropped sends {msg.dropped_sends}  "
+        f"fw {fw}  up {msg.uptime_s:.0f} s{err}"
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class WatchResult:
+    """What a watch saw: readings received, readings lost (seq gaps), the last seq."""
+
+    readings: int
+    lost: int
+    last_seq: int | None
+
+
+def watch(
+    endpoint: str,
+    out: TextIO,
+    sensor: str | None = None,
+    every: int = 1,
+    refresh: bool = False,
+    as_json: bool = False,
+    count: int | None = None,
+    duration: float | None = None,
+) -> WatchResult:
+    """Print the stream until ``count`` readings or ``duration`` seconds."""
+    from lunad.protocol.client import Subscriber
+    from lunad.protocol.messages import RangeMessage
+
+    readings = 0
+    deadline = None if duration is None else time.monotonic() + duration
+    last_health = ""
+    with Subscriber(endpoint, sensor=sensor) as sub:
+        while count is None or readings < count:
+            left = None if deadline is None else deadline - time.monotonic()
+            if left is not None and left <= 0:
+                break
+            msg = sub.recv(timeout_s=0.5 if left is None else min(0.5, left))
+            if msg is None:
+                continue
+            if as_json:
+                out.write(msg.model_dump_json() + "\n")
+                readings += isinstance(msg, RangeMessage)
+                continue
+            if isinstance(msg, RangeMessage):
+                readings += 1
+                if refresh:
+                    out.write("\r" + format_range(msg)[:150] + "  " + last_health + "\x1b[K")
+                    out.flush()
+                elif readings % every == 0:
+                    out.write(format_range(msg) + "\n")
+            else:
+                last_health = f"[{msg.state} {msg.fps:.0f} fps]"
+                if not refresh:
+                    out.write(format_health(msg) + "\n")
+            if not refresh:
+                out.flush()
+        result = WatchResult(readings, sub.lost, sub.last_seq)
+    if refresh:
+        out.write("\n")
+    return result
+
+
+def run(args: argparse.Namespace) -> int:
+    """Watch until Ctrl-C, ``--count`` or ``--duration``."""
+    if args.every < 1:
+        print("lunad watch: --every must be at least 1", file=sys.stderr)
+        return 2
+    try:
+        result = watch(
+            args.connect,
+            sys.stdout,
+            args.sensor,
+            args.every,
+            args.refresh,
+            args.json,
+            args.count,
+            args.duration,
+        )
+    except KeyboardInterrupt:
+        return 0
+    print(f"{result.readings} readings, {result.lost} lost (seq gaps)", file=sys.stderr)
+    return 0

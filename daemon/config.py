@@ -1,0 +1,182 @@
+"""Daemon configuration: a TOML file validated by pydantic, command-line flags on top.
+
+Every mistake becomes one ``ConfigError`` whose message names the field (as written
+in the TOML file, and the flag that sets it) and what is allowed, so ``lunad serve``
+can print it and exit with code 78 before opening anything. An example file with
+every key commented is ``systemd/lunad.toml.example``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+import tomllib
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from lunad.daemon.errors import ConfigError
+from lunad.filters import FilterConfig
+from lunad.protocol.commands import BAUD_RATES, FRAME_RATES_HZ
+
+DEFAULT_ENDPOINT = "tcp://127.0.0.1:7781"
+DEFAULT_DEVICE = "/dev/serial0"
+_ENDPOINT_RE = re.compile(r"^(tcp://[^\s]+:(\d+|\*)|ipc://[^\s]+|inproc://[^\s]+)$")
+
+FLAGS: dict[str, str] = {
+    "sensor.name": "--name",
+    "sensor.frame_rate_hz": "--rate",
+    "sensor.configure": "--no-configure",
+    "source.device": "--device",
+    "source.baud": "--baud",
+    "publish.endpoint": "--publish",
+    "log_level": "--log-level",
+}
+"""Which command-line flag overrides which config field (for error messages)."""
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class SensorSection(_Section):
+    """[sensor]: what this sensor is called and how to set it up at start."""
+
+    name: Annotated[str, Field(pattern=r"^[A-Za-z0-9_.-]{1,64}$")] = "tfluna"
+    frame_rate_hz: int = 100
+    configure: bool = True
+
+    @field_validator("frame_rate_hz")
+    @classmethod
+    def _rate(cls, v: int) -> int:
+        if v == 0 or v not in FRAME_RATES_HZ:
+            raise ValueError("must be 500/n Hz for an integer n: 250, 166, 125, 100, ..., 1")
+        return v
+
+
+class SourceSection(_Section):
+    """[source]: where the bytes come from."""
+
+    kind: Literal["serial"] = "serial"
+    device: Annotated[str, Field(min_length=1)] = DEFAULT_DEVICE
+    baud: int = 115200
+
+    @field_validator("baud")
+    @classmethod
+    def _baud(cls, v: int) -> int:
+        if v not in BAUD_RATES:
+            raise ValueError(f"must be one of {', '.join(map(str, BAUD_RATES))}")
+        return v
+
+
+class PublishSection(_Section):
+    """[publish]: the ZeroMQ PUB socket."""
+
+    endpoint: str = DEFAULT_ENDPOINT
+    health_interval_s: Annotated[float, Field(gt=0, le=60)] = 1.0
+    sndhwm: Annotated[int, Field(ge=1, le=1_000_000)] = 1000
+
+    @field_validator("endpoint")
+    @classmethod
+    def _endpoint(cls, v: str) -> str:
+        if not _ENDPOINT_RE.match(v):
+            raise ValueError("must look like tcp://HOST:PORT or ipc:///PATH")
+        return v
+
+
+class FilterSection(_Section):
+    """[filter]: overrides of ``lunad.filters.FilterConfig`` (same names and units)."""
+
+    model_config = ConfigDict(extra="allow", frozen=True)
+
+    def to_filter_config(self) -> FilterConfig:
+        """The filter's own settings, checked against its field names and types."""
+        known = {f.name: f for f in dataclasses.fields(FilterConfig)}
+        values: dict[str, Any] = {}
+        for key, value in (self.model_extra or {}).items():
+            field = known.get(key)
+            if field is None:
+                raise ValueError(f"filter.{key}: unknown key; allowed: {', '.join(known)}")
+            default = getattr(FilterConfig(), key)
+            if isinstance(default, bool) or not isinstance(default, (int, float)):
+                ok = isinstance(value, type(default))
+            else:
+                ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+            if not ok:
+                raise ValueError(f"filter.{key}: must be a {type(default).__name__}, got {value!r}")
+            values[key] = type(default)(value)
+        try:
+            return FilterConfig(**values)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"filter: {exc}") from exc
+
+
+class Config(_Section):
+    """The whole daemon configuration."""
+
+    sensor: SensorSection = SensorSection()
+    source: SourceSection = SourceSection()
+    publish: PublishSection = PublishSection()
+    filter: FilterSection = FilterSection()
+    log_level: Literal["debug", "info", "warning", "error"] = "info"
+
+
+def load_config(path: Path | str | None, overrides: dict[str, Any] | None = None) -> Config:
+    """Read ``path`` (or defaults), apply ``overrides`` and validate.
+
+    Args:
+        path: a TOML file, or None for the built-in defaults.
+        overrides: dotted field name -> value, from command-line flags; None values
+            are ignored.
+
+    Raises:
+        ConfigError: the file is missing or not TOML, or a field is wrong.
+    """
+    data: dict[str, Any] = {}
+    origin = "defaults"
+    if path is not None:
+        origin = str(path)
+        try:
+            data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise ConfigError(f"config file {path} does not exist") from None
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"config file {path} cannot be read: {exc}") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(f"config file {path} is not valid TOML: {exc}") from None
+    for dotted, value in (overrides or {}).items():
+        if value is None:
+            continue
+        node = data
+        *parents, leaf = dotted.split(".")
+        for part in parents:
+            child = node.setdefault(part, {})
+            if not isinstance(child, dict):
+                raise ConfigError(f"{part}: must be a table in {origin}")
+            node = child
+        node[leaf] = value
+    try:
+        cfg = Config.model_validate(data)
+        cfg.filter.to_filter_config()
+    except ValidationError as exc:
+        raise ConfigError(_describe(exc, origin)) from None
+    except ValueError as exc:
+        raise ConfigError(f"{origin}: {exc}") from None
+    return cfg
+
+
+def _describe(exc: ValidationError, origin: str) -> str:
+    """One line per wrong field: ``source.baud (--baud): must be one of ...; got 12``."""
+    lines = []
+    for err in exc.errors():
+        field = ".".join(str(p) for p in err["loc"])
+        flag = FLAGS.get(field)
+        where = f"{field} ({flag})" if flag else field
+        msg = err["msg"].removeprefix("Value error, ")
+        if err["type"] == "extra_forbidden":
+            msg = "unknown key"
+        got = err.get("input")
+        suffix = "" if err["type"] in ("extra_forbidden", "missing") else f"; got {got!r}"
+        lines.append(f"{where}: {msg}{suffix}")
+    return f"invalid configuration ({origin}): " + "; ".join(lines)

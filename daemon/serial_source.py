@@ -1,0 +1,80 @@
+"""UART source through pyserial.
+
+Opened with ``serial.serial_for_url(..., exclusive=True)``: a path, ``loop://``,
+``spy:///dev/ttyAMA0`` (hex dump of the traffic) or ``socket://host:port`` work with
+no extra code, and a second process cannot steal bytes from an open port. pyserial
+reports a pulled USB adapter as ``SerialException`` on a read after ``select`` said
+ready (serialposix.py); that, and any OSError, is ``SourceLostError`` here.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import serial
+
+from lunad.daemon.errors import SourceLostError, SourceOpenError
+from lunad.daemon.source import Source
+
+if TYPE_CHECKING:
+    from lunad.daemon.config import SourceSection
+
+
+class SerialSource(Source):
+    """A TF-Luna on a serial port (8N1, M05 p.12)."""
+
+    def __init__(self, device: str, baud: int = 115200) -> None:
+        self.device = device
+        self.baud = baud
+        try:
+            self._ser = serial.serial_for_url(
+                device, baudrate=baud, timeout=0.5, exclusive=True, do_not_open=False
+            )
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise SourceOpenError(f"cannot open {device}: {exc}") from exc
+
+    @classmethod
+    def from_config(cls, cfg: SourceSection) -> SerialSource:
+        """Open the port ``cfg`` names."""
+        return cls(cfg.device, cfg.baud)
+
+    def _read(self, timeout_s: float | None) -> bytes:
+        ser = self._ser
+        try:
+            if ser.timeout != timeout_s:
+                ser.timeout = timeout_s
+            data = ser.read(1)
+            if data:
+                waiting = ser.in_waiting
+                if waiting:
+                    data += ser.read(waiting)
+            return bytes(data)
+        except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
+            # TypeError/AttributeError: pyserial's read on a port closed under it.
+            raise SourceLostError(f"{self.device}: {exc}") from exc
+
+    def write(self, data: bytes) -> None:
+        """Send command bytes; a failure means the device is gone."""
+        try:
+            self._ser.write(data)
+        except (serial.SerialException, OSError) as exc:
+            raise SourceLostError(f"{self.device}: write failed: {exc}") from exc
+
+    def cancel(self) -> None:
+        """Wake a blocked read (pyserial's ``cancel_read``)."""
+        cancel = getattr(self._ser, "cancel_read", None)
+        if cancel is not None and self._ser.is_open:
+            try:
+                cancel()
+            except (OSError, serial.SerialException):
+                pass
+
+    def close(self) -> None:
+        """Close the port; safe to call twice."""
+        try:
+            self._ser.close()
+        except (OSError, serial.SerialException):
+            pass
+
+    def __str__(self) -> str:
+        return f"serial {self.device} {self.baud} Bd"

@@ -1,0 +1,85 @@
+"""Where bytes come from: one small interface for every backend (serial, I2C, replay).
+
+Modelled on python-can's ``BusABC``: the public ``read`` does the timestamping once,
+each backend overrides the protected ``_read``. Every source yields the same type,
+a ``Chunk`` of UART-format bytes, so there is one parser path and one record format.
+"""
+
+from __future__ import annotations
+
+import time
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from types import TracebackType
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from lunad.daemon.config import SourceSection
+
+
+@dataclass(frozen=True, slots=True)
+class Chunk:
+    """Bytes read in one call, and when (``time.monotonic_ns()`` after the read)."""
+
+    data: bytes
+    t_mono_ns: int
+
+
+class Source(ABC):
+    """A byte source. ``read`` blocks at most ``timeout_s``; ``close`` is idempotent."""
+
+    def read(self, timeout_s: float | None) -> Chunk | None:
+        """The next bytes, or None when none arrived within ``timeout_s`` seconds.
+
+        Raises:
+            SourceLostError: the device went away; close this source and reopen.
+        """
+        data = self._read(timeout_s)
+        if not data:
+            return None
+        return Chunk(data, time.monotonic_ns())
+
+    @abstractmethod
+    def _read(self, timeout_s: float | None) -> bytes:
+        """Backend read: up to what is available, after waiting at most ``timeout_s``."""
+
+    def write(self, data: bytes) -> None:  # noqa: B027 - optional for read-only sources
+        """Send command bytes to the sensor (sources that cannot send ignore them)."""
+
+    def cancel(self) -> None:  # noqa: B027 - optional
+        """Wake a blocked ``read`` from another thread or a signal handler."""
+
+    @abstractmethod
+    def close(self) -> None:
+        """Release the device; safe to call twice."""
+
+    def __enter__(self) -> Source:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+BACKENDS: dict[str, tuple[str, str]] = {
+    "serial": ("lunad.daemon.serial_source", "SerialSource"),
+}
+"""Source kind -> (module, class); the module is imported only when used."""
+
+
+def open_source(cfg: SourceSection) -> Source:
+    """Open the source ``cfg`` describes.
+
+    Raises:
+        SourceOpenError: the device cannot be opened now (absent, busy, no permission).
+    """
+    import importlib
+
+    module_name, class_name = BACKENDS[cfg.kind]
+    cls = getattr(importlib.import_module(module_name), class_name)
+    source: Source = cls.from_config(cfg)
+    return source

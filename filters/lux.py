@@ -1,0 +1,100 @@
+"""Online ambient-light estimator: L_hat from the spread of S-normalised residuals.
+
+How this works. Paper eqs 2-3 say one reading has noise sigma = (sigma0 + k L) / S.
+Write c = sigma0 + k L (the noise at S = 1, metres). The filter's innovation
+e = z - x_pred has variance
+
+    V = P_pred + c^2 / S^2 + q          (q = resolution^2 / 12, the 1 cm steps)
+
+so each reading gives an unbiased sample of c^2:  (e^2 - P_pred - q) S^2. We average
+these with an exponential window of time constant tau (0.125 s: 32 frames at 250 Hz,
+within 2 % of a new level after 0.5 s), and then
+
+    L_hat = (c_hat - sigma0) / k        (published clipped at 0)
+
+Robustness (spikes, steps): before it enters the average, e^2 is winsorised at
+(2.5^2) V_hat, using the current estimate; a multipath spike or a step then moves
+c^2 by at most alpha (6.25 / kappa - 1), a few percent, instead of dragging it by
+orders of magnitude. kappa = E[min(Z^2, 2.5^2)] = 0.978 removes the clipping's bias
+for Gaussian noise. The same clip bounds how fast c_hat can grow when it is far too
+small (x1.17 per frame at 250 Hz), so a sudden sun still converges in a few dozen
+frames. Departure from the paper: it treats L as known; here it is inferred.
+
+A sensor whose constants differ from the configured sigma0 and k (``noise_scale``)
+is absorbed: the filter only ever uses c_hat, which is measured. L_hat is then biased:
+with constants scaled by f, L_hat = (f - 1) sigma0 / k + f L. Internally c_hat may
+go below sigma0 (a quieter sensor); only the published lux is clipped at 0.
+"""
+
+from __future__ import annotations
+
+import math
+
+from lunad.filters.config import FilterConfig
+
+_C2_FLOOR_FRACTION = 0.01  # c_hat never below sigma0 / 10: keeps R positive and learnable
+
+
+def clipped_square_mean(clip_sigmas: float) -> float:
+    """E[min(Z^2, c^2)] for standard normal Z: the bias of a winsorised variance."""
+    c = clip_sigmas
+    inside = math.erf(c / math.sqrt(2.0))
+    pdf = math.exp(-0.5 * c * c) / math.sqrt(2.0 * math.pi)
+    return inside - 2.0 * c * pdf + c * c * (1.0 - inside)
+
+
+class LuxEstimator:
+    """Tracks c = sigma0 + k L from innovations; reports L_hat in lux."""
+
+    __slots__ = ("_c2_floor", "_c2_init", "_clip2", "_inv_kappa", "_k", "_sigma0", "_tau_s", "c2")
+
+    def __init__(self, config: FilterConfig) -> None:
+        self._sigma0 = config.sigma0_m
+        self._k = config.k_m_per_lux
+        self._tau_s = config.lux_tau_s
+        self._clip2 = config.lux_clip_sigmas * config.lux_clip_sigmas
+        self._inv_kappa = 1.0 / clipped_square_mean(config.lux_clip_sigmas)
+        c_init = config.sigma0_m + config.k_m_per_lux * config.lux_init
+        self._c2_init = c_init * c_init
+        self._c2_floor = _C2_FLOOR_FRACTION * config.sigma0_m * config.sigma0_m
+        self.c2 = self._c2_init
+
+    def reset(self) -> None:
+        """Back to the configured initial light level."""
+        self.c2 = self._c2_init
+
+    @property
+    def c_m(self) -> float:
+        """Estimated noise at S = 1, metres (sigma0 + k L_hat, unclipped)."""
+        return math.sqrt(self.c2)
+
+    @property
+    def lux(self) -> float:
+        """Estimated ambient light, lux, clipped at 0."""
+        lux = (math.sqrt(self.c2) - self._sigma0) / self._k
+        return lux if lux > 0.0 else 0.0
+
+    def update(self, innov_m: float, p_pred_m2: float, s: float, q_m2: float, dt_s: float) -> None:
+        """Learn from one innovation.
+
+        Args:
+            innov_m: z - x_pred, metres.
+            p_pred_m2: predicted variance of the state's position, m^2.
+            s: strength S of the reading.
+            q_m2: variance of the quantisation, m^2.
+            dt_s: time since the previous frame, seconds (sets the averaging weight).
+        """
+        if dt_s <= 0.0:
+            return
+        s2 = s * s
+        v = p_pred_m2 + self.c2 / s2 + q_m2
+        e2 = innov_m * innov_m
+        lim = self._clip2 * v
+        if e2 > lim:
+            e2 = lim
+        sample = (e2 * self._inv_kappa - p_pred_m2 - q_m2) * s2
+        a = dt_s / self._tau_s
+        if a > 0.5:
+            a = 0.5
+        c2 = self.c2 + a * (sample - self.c2)
+        self.c2 = c2 if c2 > self._c2_floor else self._c2_floor

@@ -1,0 +1,124 @@
+"""Dropout policy: hard gates with hysteresis, the ambient flag, staleness.
+
+How this works. One reading is a dropout when any of these holds (DESIGN.md data
+flow; TFLUNA.md section 4; paper section III):
+
+    amp == 0xFFFF                      saturated     (M05 p.14)
+    amp >  32768                       high_ambient  (M05 p.14: ambient overexposure)
+    amp <  amp_min  or  S < S_min      weak_signal   (M05 p.16; paper S_min = 0.05)
+    distance none or outside [0.2, 8]  out_of_range  (M05 p.10; paper section III)
+
+Hysteresis (our addition; the paper has sharp thresholds): once a reading was weak,
+the next ones stay weak until amp >= amp_min (1 + h) and S >= S_min (1 + h); once
+out of range, until the distance is range_hysteresis_m inside the gate. Readings in
+these bands are still physically valid, so the filter may learn from them; only
+the published status stays ``dropout``. That keeps a target hovering at a threshold
+from flapping between ok and dropout every other frame.
+
+``high_ambient`` from the lux estimate marks output ``degraded`` (not a dropout:
+the estimate is usable, only noisier), entered above lux_high_ambient and left
+below lux_high_ambient (1 - h). amp > 32768 is the sensor's own binary flag and
+has no band.
+"""
+
+from __future__ import annotations
+
+from lunad.filters.config import AMP_AMBIENT, AMP_SATURATED, FilterConfig
+from lunad.filters.estimate import Reason
+
+NO_REASONS: tuple[Reason, ...] = ()
+_SATURATED = (Reason.SATURATED,)
+_AMBIENT = (Reason.HIGH_AMBIENT,)
+_WEAK = (Reason.WEAK_SIGNAL,)
+_OUT = (Reason.OUT_OF_RANGE,)
+_WEAK_OUT = (Reason.WEAK_SIGNAL, Reason.OUT_OF_RANGE)
+
+
+class DropoutPolicy:
+    """Hard gates with hysteresis; one call per frame, state on the object.
+
+    After :meth:`gate`, :attr:`usable` says whether the reading may feed the filter
+    (it passes the gates without their hysteresis bands).
+    """
+
+    __slots__ = (
+        "_amp_hi",
+        "_amp_min",
+        "_amp_ref",
+        "_lux_enter",
+        "_lux_exit",
+        "_max_in",
+        "_max_m",
+        "_min_in",
+        "_min_m",
+        "_s_hi",
+        "_s_min",
+        "ambient",
+        "out_of_range",
+        "usable",
+        "weak",
+    )
+
+    def __init__(self, config: FilterConfig) -> None:
+        h = config.hysteresis
+        self._amp_min = config.amp_min
+        self._amp_hi = config.amp_min * (1.0 + h)
+        self._amp_ref = config.amp_ref
+        self._s_min = config.s_min
+        self._s_hi = config.s_min * (1.0 + h)
+        self._min_m = config.min_range_m
+        self._max_m = config.max_range_m
+        self._min_in = config.min_range_m + config.range_hysteresis_m
+        self._max_in = config.max_range_m - config.range_hysteresis_m
+        self._lux_enter = config.lux_high_ambient
+        self._lux_exit = config.lux_high_ambient * (1.0 - h)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the latched states."""
+        self.weak = False
+        self.out_of_range = False
+        self.ambient = False
+        self.usable = False
+
+    def gate(self, raw_m: float | None, amp: int, s: float) -> tuple[Reason, ...]:
+        """Reasons this reading is a dropout (empty tuple: publish it).
+
+        Args:
+            raw_m: reported distance, metres, or None when the sensor reported none.
+            amp: reported signal strength.
+            s: S = amp / amp_ref.
+        """
+        if amp == AMP_SATURATED:
+            self.usable = False
+            return _SATURATED
+        if amp > AMP_AMBIENT:
+            self.usable = False
+            return _AMBIENT
+        below = amp < self._amp_min or s < self._s_min
+        if self.weak:
+            weak = amp < self._amp_hi or s < self._s_hi
+        else:
+            weak = below
+        self.weak = weak
+        if raw_m is None:
+            self.usable = False
+            return _WEAK if weak else _OUT
+        outside = raw_m < self._min_m or raw_m > self._max_m
+        if self.out_of_range:
+            out = raw_m < self._min_in or raw_m > self._max_in
+        else:
+            out = outside
+        self.out_of_range = out
+        self.usable = not (below or outside)
+        if weak:
+            return _WEAK_OUT if out else _WEAK
+        return _OUT if out else NO_REASONS
+
+    def high_ambient(self, lux: float) -> bool:
+        """Whether the lux estimate says ambient light is high, with hysteresis."""
+        if self.ambient:
+            self.ambient = lux > self._lux_exit
+        else:
+            self.ambient = lux > self._lux_enter
+        return self.ambient

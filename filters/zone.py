@@ -1,0 +1,92 @@
+"""Operating zone: stable / marginal / unreliable, with hysteresis.
+
+How this works. The paper (section IV.D, section V, Table I) finds sub-centimetre,
+dropout-free operation for lux < 10 klux, R > 0.5 and incidence < 45 deg, and severe
+degradation past 50 klux or on dark, oblique targets. We cannot observe R and the
+angle separately, only their product in S = R cos(theta) (paper eq. 1; S = 1 at the
+calibration distance), so the zone uses the three things the filter knows:
+
+    stable      L_hat < 10 klux  and  S >= 0.35  and  sigma <= 2 cm
+    unreliable  L_hat > 50 klux  or   S <  0.10  or   sigma > 10 cm   (or no estimate)
+    marginal    otherwise
+
+0.35 is R cos(theta) at the corner of the paper's region (0.5 cos 45 deg). Departure:
+our S also falls with distance squared (amp does), so a white target far away counts
+as a dark one, which matches its noise. Hysteresis: a zone is left only when the
+values are beyond its thresholds by the relative band ``hysteresis``.
+"""
+
+from __future__ import annotations
+
+from lunad.filters.config import FilterConfig
+from lunad.filters.estimate import Zone
+
+
+class ZoneClassifier:
+    """Classifies each estimate; remembers the last zone for hysteresis."""
+
+    __slots__ = (
+        "_h",
+        "_lux_stable",
+        "_lux_unrel",
+        "_s_stable",
+        "_s_unrel",
+        "_sig_stable",
+        "_sig_unrel",
+        "zone",
+    )
+
+    def __init__(self, config: FilterConfig) -> None:
+        self._h = config.hysteresis
+        self._lux_stable = config.lux_stable_max
+        self._s_stable = config.s_stable_min
+        self._sig_stable = config.sigma_stable_max_m
+        self._lux_unrel = config.lux_unreliable
+        self._s_unrel = config.s_unreliable
+        self._sig_unrel = config.sigma_unreliable_m
+        self.zone = Zone.UNRELIABLE
+
+    def reset(self) -> None:
+        """Start from ``unreliable``: nothing is known yet."""
+        self.zone = Zone.UNRELIABLE
+
+    def classify(self, lux: float, s: float, sigma_m: float) -> Zone:
+        """Zone of one estimate.
+
+        Args:
+            lux: ambient light estimate, lux.
+            s: strength S = amp / amp_ref.
+            sigma_m: one-sigma uncertainty of the estimate, metres.
+        """
+        prev = self.zone
+        up = 1.0 + self._h
+        down = 1.0 - self._h
+        if prev is Zone.UNRELIABLE:
+            unreliable = not (
+                lux < self._lux_unrel * down
+                and s >= self._s_unrel * up
+                and sigma_m <= self._sig_unrel * down
+            )
+        else:
+            unreliable = lux > self._lux_unrel or s < self._s_unrel or sigma_m > self._sig_unrel
+        if unreliable:
+            zone = Zone.UNRELIABLE
+        elif prev is Zone.STABLE:
+            stable = (
+                lux < self._lux_stable * up
+                and s >= self._s_stable * down
+                and sigma_m <= self._sig_stable * up
+            )
+            zone = Zone.STABLE if stable else Zone.MARGINAL
+        else:
+            stable = (
+                lux < self._lux_stable and s >= self._s_stable and sigma_m <= self._sig_stable
+            )
+            zone = Zone.STABLE if stable else Zone.MARGINAL
+        self.zone = zone
+        return zone
+
+    def dropout(self) -> Zone:
+        """Zone of a frame without an estimate (always unreliable)."""
+        self.zone = Zone.UNRELIABLE
+        return Zone.UNRELIABLE

@@ -1,0 +1,119 @@
+"""A small subscriber for robot code::
+
+    from lunad.protocol.client import Subscriber
+    with Subscriber("tcp://127.0.0.1:7781") as sub:
+        for msg in sub:
+            print(msg.range_m if msg.kind == "range" else msg.state)
+
+ZeroMQ reconnects a SUB socket by itself, so a daemon restart needs nothing from the
+caller. The subscriber checks every ``range`` message's ``seq`` and counts the messages
+it missed in ``lost`` (a daemon restart, seen as ``seq`` going back, is not a loss).
+Messages that do not decode are counted in ``bad_messages`` and skipped.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from types import TracebackType
+
+import zmq
+from pydantic import ValidationError
+
+from lunad.protocol.messages import (
+    HEALTH_TOPIC,
+    RANGE_TOPIC,
+    HealthMessage,
+    Message,
+    RangeMessage,
+    decode,
+)
+
+RECONNECT_IVL_MS = 100
+RECONNECT_IVL_MAX_MS = 2000
+
+__all__ = ["HealthMessage", "RangeMessage", "Subscriber"]
+
+
+class Subscriber:
+    """Receives typed ``range`` and ``health`` messages from a lunad daemon.
+
+    Args:
+        endpoint: where the daemon publishes, e.g. ``tcp://127.0.0.1:7781`` or
+            ``ipc:///run/lunad/front.sock``.
+        sensor: only this sensor's messages; None for every sensor on the endpoint.
+        kinds: which topics to receive, ``"range"`` and/or ``"health"``.
+        context: a ZeroMQ context to share; by default the process-wide instance.
+    """
+
+    def __init__(
+        self,
+        endpoint: str,
+        sensor: str | None = None,
+        kinds: Iterable[str] = (RANGE_TOPIC, HEALTH_TOPIC),
+        context: zmq.Context[zmq.Socket[bytes]] | None = None,
+    ) -> None:
+        self.endpoint = endpoint
+        self.sensor = sensor
+        self.lost = 0
+        self.bad_messages = 0
+        self.last_seq: int | None = None
+        ctx = context or zmq.Context.instance()
+        self._sock = ctx.socket(zmq.SUB)
+        self._sock.setsockopt(zmq.LINGER, 0)
+        self._sock.setsockopt(zmq.RECONNECT_IVL, RECONNECT_IVL_MS)
+        self._sock.setsockopt(zmq.RECONNECT_IVL_MAX, RECONNECT_IVL_MAX_MS)
+        self._topics = set()
+        for kind in kinds:
+            prefix = f"{kind}/{sensor}" if sensor else f"{kind}/"
+            self._topics.add(kind)
+            self._sock.setsockopt(zmq.SUBSCRIBE, prefix.encode())
+        self._sock.connect(endpoint)
+
+    def recv(self, timeout_s: float | None = None) -> Message | None:
+        """The next message, or None when none came within ``timeout_s`` seconds."""
+        timeout_ms = None if timeout_s is None else max(0, int(timeout_s * 1000))
+        while True:
+            if timeout_ms is not None and not self._sock.poll(timeout_ms):
+                return None
+            parts = self._sock.recv_multipart()
+            if len(parts) != 2:
+                self.bad_messages += 1
+                continue
+            topic, payload = parts
+            if self.sensor is not None and topic.split(b"/", 1)[-1] != self.sensor.encode():
+                continue
+            try:
+                msg = decode(topic, payload)
+            except (ValueError, ValidationError):
+                self.bad_messages += 1
+                continue
+            if isinstance(msg, RangeMessage):
+                self._track(msg.seq)
+            return msg
+
+    def __iter__(self) -> Iterator[Message]:
+        while True:
+            msg = self.recv()
+            if msg is not None:
+                yield msg
+
+    def _track(self, seq: int) -> None:
+        last = self.last_seq
+        if last is not None and seq > last + 1:
+            self.lost += seq - last - 1
+        self.last_seq = seq
+
+    def close(self) -> None:
+        """Close the socket; safe to call twice."""
+        self._sock.close(linger=0)
+
+    def __enter__(self) -> Subscriber:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
