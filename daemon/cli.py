@@ -59,13 +59,10 @@ def build_parser() -> ArgumentParser:
         title="commands", metavar="COMMAND", parser_class=ArgumentParser, required=True
     )
     for name in SUBCOMMANDS:
-        try:
-            module = importlib.import_module(name)
-        except ModuleNotFoundError as exc:
-            if exc.name != name:
-                raise
-            continue
-        module.add_parser(sub)
+        before = set(sub.choices)
+        importlib.import_module(name).add_parser(sub)
+        for added in set(sub.choices) - before:
+            sub.choices[added].set_defaults(_parser=sub.choices[added])
     return parser
 
 
@@ -80,7 +77,9 @@ def setup_logging(level: str = "info") -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``lunad`` console script."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:
+        args._parser.error(f"unrecognized arguments: {' '.join(extra)}")
     setup_logging(getattr(args, "log_level", None) or "info")
     try:
         code: int = args.func(args)

@@ -21,6 +21,12 @@ examples:
   lunad serve --device /dev/ttyUSB0 --publish ipc:///run/lunad/front.sock --name front
   lunad serve --config /etc/lunad/front.toml
   lunad serve --device spy:///dev/ttyUSB0     # pyserial URL: hex dump of the traffic
+  lunad serve --bus 1 --address 0x10          # TF-Luna wired for I2C (pin 5 to GND)
+  lunad serve --replay field.lunarec --speed max   # replay a recording (lunad record)
+  lunad serve --device /dev/serial0 --publish-hz 50   # low-power publishing
+
+SIGHUP re-reads the config file; a bad new config is refused and the old one stays.
+Under systemd (Type=notify) it sends READY=1, STATUS=, WATCHDOG=1 and STOPPING=1.
 """
 
 
@@ -37,7 +43,16 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--config", metavar="FILE", help="TOML config file")
     p.add_argument("--device", help="serial device path or pyserial URL (default /dev/serial0)")
     p.add_argument("--baud", help="baud rate (default 115200)")
+    p.add_argument("--bus", help="read over I2C from /dev/i2c-BUS instead ('sim': simulated)")
+    p.add_argument("--address", help="I2C address (default 0x10)")
+    p.add_argument("--replay", metavar="FILE", help="replay a recording instead of a sensor")
+    p.add_argument("--speed", help="replay speed factor, or 'max' (default 1)")
     p.add_argument("--publish", metavar="ENDPOINT", help="ZeroMQ endpoint to bind")
+    p.add_argument(
+        "--publish-hz",
+        metavar="N",
+        help="low-power mode: read and filter every frame, publish at most N times a second",
+    )
     p.add_argument("--name", help="sensor name used in topics (default tfluna)")
     p.add_argument("--rate", metavar="HZ", help="frame rate to set at start (default 100)")
     p.add_argument(
@@ -54,10 +69,17 @@ def run(args: argparse.Namespace) -> int:
     from lunad.daemon.config import load_config
     from lunad.daemon.errors import EX_CONFIG, EX_UNAVAILABLE, ConfigError, PublishError
 
+    kind = "replay" if args.replay else "i2c" if args.bus else "serial" if args.device else None
     overrides: dict[str, Any] = {
+        "source.kind": kind,
         "source.device": args.device,
         "source.baud": args.baud,
+        "source.bus": args.bus,
+        "source.address": args.address,
+        "source.path": args.replay,
+        "source.speed": args.speed,
         "publish.endpoint": args.publish,
+        "publish.publish_hz": args.publish_hz,
         "sensor.name": args.name,
         "sensor.frame_rate_hz": args.rate,
         "sensor.configure": False if args.no_configure else None,
@@ -74,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
     from lunad.daemon.serve import Daemon
 
     setup_logging(cfg.log_level)
-    daemon = Daemon(cfg)
+    daemon = Daemon(cfg, args.config, overrides)
     daemon.install_signal_handlers()
     try:
         publisher = Publisher(cfg.publish.endpoint, cfg.publish.sndhwm)

@@ -14,7 +14,14 @@ import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from lunad.daemon.errors import ConfigError
 from lunad.filters import FilterConfig
@@ -28,9 +35,15 @@ FLAGS: dict[str, str] = {
     "sensor.name": "--name",
     "sensor.frame_rate_hz": "--rate",
     "sensor.configure": "--no-configure",
+    "source.kind": "--device/--bus/--replay",
     "source.device": "--device",
     "source.baud": "--baud",
+    "source.bus": "--bus",
+    "source.address": "--address",
+    "source.path": "--replay",
+    "source.speed": "--speed",
     "publish.endpoint": "--publish",
+    "publish.publish_hz": "--publish-hz",
     "log_level": "--log-level",
 }
 """Which command-line flag overrides which config field (for error messages)."""
@@ -56,11 +69,46 @@ class SensorSection(_Section):
 
 
 class SourceSection(_Section):
-    """[source]: where the bytes come from."""
+    """[source]: where the bytes come from.
 
-    kind: Literal["serial"] = "serial"
+    ``kind`` picks the backend: ``serial`` reads ``device`` at ``baud``; ``i2c`` reads
+    ``bus`` (a number for /dev/i2c-N, or ``sim`` for the simulated bus) at ``address``;
+    ``replay`` plays the recording at ``path`` at ``speed`` x real time (``max``: as
+    fast as possible). ``rate_hz`` is filled in from [sensor] for backends that pace
+    themselves (I2C).
+    """
+
+    kind: Literal["serial", "i2c", "replay"] = "serial"
     device: Annotated[str, Field(min_length=1)] = DEFAULT_DEVICE
     baud: int = 115200
+    bus: Annotated[str, Field(pattern=r"^(\d+|sim)$")] = "1"
+    address: Annotated[int, Field(ge=0x08, le=0x77)] = 0x10
+    path: str | None = None
+    speed: float | Literal["max"] = 1.0
+    rate_hz: int = 100
+
+    @field_validator("address", mode="before")
+    @classmethod
+    def _address(cls, v: Any) -> Any:
+        if isinstance(v, str):
+            try:
+                return int(v, 0)
+            except ValueError:
+                raise ValueError("must be an I2C address like 0x10") from None
+        return v
+
+    @field_validator("speed")
+    @classmethod
+    def _speed(cls, v: float | str) -> float | str:
+        if isinstance(v, float) and not 0 < v <= 1000:
+            raise ValueError("must be a factor in (0, 1000] or max")
+        return v
+
+    @model_validator(mode="after")
+    def _replay_needs_path(self) -> SourceSection:
+        if self.kind == "replay" and not self.path:
+            raise ValueError("replay needs path (--replay FILE)")
+        return self
 
     @field_validator("baud")
     @classmethod
@@ -76,6 +124,7 @@ class PublishSection(_Section):
     endpoint: str = DEFAULT_ENDPOINT
     health_interval_s: Annotated[float, Field(gt=0, le=60)] = 1.0
     sndhwm: Annotated[int, Field(ge=1, le=1_000_000)] = 1000
+    publish_hz: Annotated[float, Field(gt=0, le=250)] | None = None
 
     @field_validator("endpoint")
     @classmethod
@@ -156,6 +205,10 @@ def load_config(path: Path | str | None, overrides: dict[str, Any] | None = None
                 raise ConfigError(f"{part}: must be a table in {origin}")
             node = child
         node[leaf] = value
+    sensor = data.get("sensor")
+    source = data.get("source")
+    if isinstance(source, dict) and isinstance(sensor, dict) and "frame_rate_hz" in sensor:
+        source.setdefault("rate_hz", sensor["frame_rate_hz"])
     try:
         cfg = Config.model_validate(data)
         cfg.filter.to_filter_config()

@@ -3,11 +3,17 @@
 How this works: one thread owns everything. It blocks in the source's read (bounded
 by the next housekeeping deadline, so an idle daemon wakes a few times a second and
 never spins), feeds the bytes to the parser, runs each frame through the filter and
-publishes one ``range`` message per frame. Housekeeping between reads: ``health``
-once per interval and at every state change, the silent-sensor check, and the
-reconnect schedule. A lost or absent device never stops the daemon: it reports
-``reconnecting`` and retries with backoff (0.1 s doubling to 2 s) until the path
-works again. SIGTERM/SIGINT set a flag and wake the blocked read.
+publishes one ``range`` message per frame. Between reads it does the housekeeping:
+``health`` once per interval and at every state change, the silent-sensor check, the
+reconnect schedule, the last-value cache for late subscribers, the systemd watchdog
+(pinged only from this loop, so a wedged loop gets restarted) and SIGHUP reloads.
+
+A lost or absent device never stops the daemon: it reports ``reconnecting`` and
+retries with backoff (0.1 s doubling to 2 s) until the path works again.
+
+Low-power mode (``publish_hz``): the loop sleeps until the next publish time, reads
+everything the port holds, filters every frame and publishes only the latest; ``seq``
+still counts every frame, so subscribers see how many were folded.
 """
 
 from __future__ import annotations
@@ -18,14 +24,17 @@ import signal
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 from types import FrameType
+from typing import Any
 
-from lunad.daemon.config import Config, SourceSection
-from lunad.daemon.errors import SourceLostError, SourceOpenError
+from lunad.daemon.config import Config, ConfigError, SourceSection, load_config
+from lunad.daemon.errors import PublishError, SourceLostError, SourceOpenError
 from lunad.daemon.health import Health, State
+from lunad.daemon.notify import Notifier
 from lunad.daemon.publisher import Publisher
 from lunad.daemon.source import Source, open_source
-from lunad.filters import RangeFilter, Status
+from lunad.filters import Estimate, RangeFilter, Status
 from lunad.protocol import commands
 from lunad.protocol.commands import CommandId, CommandReply, decode_reply
 from lunad.protocol.frame import Frame
@@ -38,8 +47,9 @@ WAITING_AFTER_S = 1.0  # no bytes for this long: state waiting (the contract say
 VERSION_TIMEOUT_S = 1.0  # a sensor that has not answered the version query by then is warned of
 BACKOFF_FIRST_S = 0.1
 BACKOFF_MAX_S = 2.0
-READ_SLICE_S = 0.25  # longest blocking read; bounds the reaction to state changes
+READ_SLICE_S = 0.25  # longest blocking read; deadlines and wake-ups cut it shorter
 RETRY_LOG_EVERY_S = 60.0  # while a device stays absent, remind the log this often
+NS = 1_000_000_000
 
 
 class Daemon:
@@ -47,138 +57,144 @@ class Daemon:
 
     Args:
         cfg: validated configuration.
+        config_path: the file SIGHUP re-reads (None: SIGHUP re-applies ``overrides``).
+        overrides: the command-line values that keep overriding the file on reload.
         source_opener: opens the source (tests can pass another backend).
+        notifier: systemd notification; from the environment by default.
     """
 
     def __init__(
-        self, cfg: Config, source_opener: Callable[[SourceSection], Source] = open_source
+        self,
+        cfg: Config,
+        config_path: Path | str | None = None,
+        overrides: dict[str, Any] | None = None,
+        source_opener: Callable[[SourceSection], Source] = open_source,
+        notifier: Notifier | None = None,
     ) -> None:
         self.cfg = cfg
+        self.config_path = config_path
+        self.overrides = overrides or {}
         self._open = source_opener
-        self._stop = threading.Event()
+        self.notifier = notifier or Notifier.from_env()
+        self._wake = threading.Event()
+        self._stopping = False
+        self._reload_requested = False
         self._source: Source | None = None
+        self.pub: Publisher | None = None
         self.parser = FrameParser()
-        self.filter = RangeFilter(cfg.filter.to_filter_config())
         self.seq = -1
+        self._reasons_json: dict[tuple[str, ...], str] = {}
+        self._apply(cfg)
+
+    def _apply(self, cfg: Config) -> None:
+        self.cfg = cfg
+        self.filter = RangeFilter(cfg.filter.to_filter_config())
         self._sensor_json = json.dumps(cfg.sensor.name)
         self._range_topic = topic("range", cfg.sensor.name)
         self._health_topic = topic("health", cfg.sensor.name)
-        self._reasons_json: dict[tuple[str, ...], str] = {}
+        logging.getLogger("lunad").setLevel(cfg.log_level.upper())
+
+    # -- signals ------------------------------------------------------------
 
     def request_stop(self, signum: int | None = None, _frame: FrameType | None = None) -> None:
         """Ask the loop to stop and wake it; safe from a signal handler."""
         if signum is not None:
             log.info("received %s, stopping", signal.Signals(signum).name)
-        self._stop.set()
+        self._stopping = True
+        self._wake_loop()
+
+    def request_reload(self, _signum: int | None = None, _frame: FrameType | None = None) -> None:
+        """Ask the loop to re-read the config; safe from a signal handler."""
+        self._reload_requested = True
+        self._wake_loop()
+
+    def install_signal_handlers(self) -> None:
+        """SIGTERM/SIGINT stop cleanly, SIGHUP reloads the config."""
+        signal.signal(signal.SIGTERM, self.request_stop)
+        signal.signal(signal.SIGINT, self.request_stop)
+        signal.signal(signal.SIGHUP, self.request_reload)
+
+    def _wake_loop(self) -> None:
+        self._wake.set()
         src = self._source
         if src is not None:
             src.cancel()
 
-    def install_signal_handlers(self) -> None:
-        """Stop cleanly on SIGTERM and SIGINT."""
-        signal.signal(signal.SIGTERM, self.request_stop)
-        signal.signal(signal.SIGINT, self.request_stop)
+    # -- the loop -------------------------------------------------------------
 
     def run(self, publisher: Publisher) -> int:
         """Serve until asked to stop; returns the exit code (0)."""
-        cfg = self.cfg
+        self.pub = publisher
+        publisher.start_waker(self._wake_loop)
         now = time.monotonic_ns()
-        health = Health(cfg.sensor.name, now)
-        interval_ns = int(cfg.publish.health_interval_s * 1e9)
-        next_health = now
-        last_bytes = now
-        backoff = BACKOFF_FIRST_S
-        next_open = now
-        version_deadline: int | None = None
-        open_failures = 0
-        last_retry_log = 0
-        src_desc = f"{cfg.source.kind} {cfg.source.device}"
+        health = self.health = Health(self.cfg.sensor.name, now)
+        self._next_health = now
+        self._last_bytes = now
+        self._backoff = BACKOFF_FIRST_S
+        self._next_open = now
+        self._version_deadline: int | None = None
+        self._open_failures = 0
+        self._last_retry_log = 0
+        self._next_publish = now
+        notifier = self.notifier
+        wd = notifier.watchdog_interval_s
+        wd_ns = int(wd * NS) if wd else None
+        next_wd = now
+        ready_sent = False
         log.info(
-            "serving sensor %r from %s, publishing on %s",
-            cfg.sensor.name,
-            src_desc,
+            "serving sensor %r from %s, publishing on %s%s",
+            self.cfg.sensor.name,
+            self._source_desc(),
             publisher.endpoint,
+            f" at most {self.cfg.publish.publish_hz:g} times a second"
+            if self.cfg.publish.publish_hz
+            else "",
         )
 
-        def set_state(state: State, t: int) -> None:
-            nonlocal next_health
-            if health.state is not state:
-                health.state = state
-                next_health = t
-
-        while not self._stop.is_set():
+        while not self._stopping:
             now = time.monotonic_ns()
-            if self._source is None and now >= next_open:
-                try:
-                    self._source = self._open(cfg.source)
-                except SourceOpenError as exc:
-                    health.last_error = str(exc)
-                    open_failures += 1
-                    if open_failures == 1:
-                        log.warning("%s; retrying every %.1f s at most", exc, BACKOFF_MAX_S)
-                    elif (now - last_retry_log) / 1e9 >= RETRY_LOG_EVERY_S:
-                        log.warning("still cannot open %s after %d tries", src_desc, open_failures)
-                        last_retry_log = now
-                    next_open = now + int(backoff * 1e9)
-                    backoff = min(backoff * 2, BACKOFF_MAX_S)
-                    set_state(State.RECONNECTING, now)
-                else:
-                    log.info("opened %s%s", self._source, _after(open_failures))
-                    open_failures = 0
-                    backoff = BACKOFF_FIRST_S
-                    last_bytes = now
-                    set_state(State.WAITING, now)
-                    version_deadline = self._configure(now)
-
-            if now >= next_health:
-                msg = health.message(self.parser.stats, publisher.dropped_sends, now)
-                publisher.send(self._health_topic, encode_health(msg))
-                next_health = now + interval_ns
+            if self._reload_requested:
+                self._reload_requested = False
+                self._reload(now)
+            if self._source is None and now >= self._next_open:
+                self._try_open(now)
+                if not ready_sent:
+                    notifier.ready()
+                    ready_sent = True
+            if now >= self._next_health:
+                self._publish_health(now)
+            self.pub.pump()
+            now = time.monotonic_ns()
+            if wd_ns is not None and now >= next_wd:
+                notifier.watchdog()
+                next_wd = now + wd_ns
 
             src = self._source
+            deadlines = [self._next_health] + ([next_wd] if wd_ns is not None else [])
             if src is None:
-                wait_s = min(next_open, next_health) - now
-                self._stop.wait(max(0.0, wait_s / 1e9))
+                deadlines.append(self._next_open)
+                self._sleep_until(min(deadlines), now)
                 continue
-
-            timeout_s = min(READ_SLICE_S, max(0.0, (next_health - now) / 1e9))
+            if getattr(src, "exhausted", False):
+                log.info("end of %s", src)
+                break
             try:
-                chunk = src.read(timeout_s)
+                if self.cfg.publish.publish_hz:
+                    deadlines.append(self._next_publish)
+                    self._sleep_until(min(deadlines), now)
+                    got = self._read_folded(src)
+                else:
+                    slice_ns = min(READ_SLICE_S * NS, max(0, min(deadlines) - now))
+                    got = self._read_each(src, slice_ns / NS)
             except SourceLostError as exc:
-                if self._stop.is_set():
+                if self._stopping:
                     break
-                log.warning("lost %s: %s; reconnecting", src_desc, exc)
-                health.last_error = str(exc)
-                self._drop_source()
-                now = time.monotonic_ns()
-                next_open = now + int(BACKOFF_FIRST_S * 1e9)
-                backoff = BACKOFF_FIRST_S * 2
-                set_state(State.RECONNECTING, now)
+                self._lost(exc)
                 continue
-
-            now = time.monotonic_ns()
-            if chunk is not None:
-                last_bytes = now
-                if health.state is not State.CONNECTED:
-                    log.info("data arriving from %s", src_desc)
-                    set_state(State.CONNECTED, now)
-                self._process(chunk.data, chunk.t_mono_ns, health, publisher)
-            elif health.state is State.CONNECTED and now - last_bytes > WAITING_AFTER_S * 1e9:
-                log.warning("no data from %s for %.1f s", src_desc, WAITING_AFTER_S)
-                set_state(State.WAITING, now)
-            if version_deadline is not None:
-                if health.firmware is not None:
-                    version_deadline = None
-                elif now >= version_deadline:
-                    log.warning(
-                        "sensor on %s did not answer the version query within %.1f s; "
-                        "carrying on with whatever data arrives",
-                        src_desc,
-                        VERSION_TIMEOUT_S,
-                    )
-                    version_deadline = None
+            self._after_read(got)
 
         self._drop_source()
+        notifier.stopping()
         log.info(
             "stopped: %d frames published, %d checksum errors, %d bytes discarded",
             health.frames,
@@ -187,47 +203,151 @@ class Daemon:
         )
         return 0
 
-    def _process(self, data: bytes, t_mono_ns: int, health: Health, pub: Publisher) -> None:
-        items = self.parser.feed(data, t_mono_ns)
-        if not items:
-            return
-        t_unix_ns = time.time_ns() - (time.monotonic_ns() - t_mono_ns)
-        step = self.filter.step
-        send = pub.send
-        rtopic = self._range_topic
-        for item in items:
-            if type(item) is not Frame:
-                self._on_reply(item, health)  # type: ignore[arg-type]
-                continue
-            self.seq += 1
-            raw_m = item.distance_m
-            est = step(raw_m, item.amp, t_mono_ns)
-            reasons = self._reasons_json.get(est.reasons)
-            if reasons is None:
-                reasons = self._reasons_json[est.reasons] = reasons_json(est.reasons)
-            payload = encode_range(
-                self._sensor_json,
-                self.seq,
-                t_mono_ns,
-                t_unix_ns,
-                raw_m,
-                item.amp,
-                item.temp_c,
-                est.strength,
-                est.range_m,
-                est.sigma_m,
-                est.lux_est,
-                est.status.value,
-                reasons,
-                est.zone.value,
-            )
-            send(rtopic, payload)
-            health.count(est.status is Status.DROPOUT)
+    def _sleep_until(self, deadline_ns: int, now: int) -> None:
+        self._wake.wait(max(0.0, (deadline_ns - now) / NS))
+        self._wake.clear()
 
-    def _on_reply(self, reply: CommandReply, health: Health) -> None:
+    def _read_each(self, src: Source, timeout_s: float) -> bool:
+        """Blocking read; publish every frame. True when bytes came."""
+        chunk = src.read(timeout_s)
+        if chunk is None:
+            return False
+        items = self.parser.feed(chunk.data, chunk.t_mono_ns)
+        if items:
+            t_unix_ns = time.time_ns() - (time.monotonic_ns() - chunk.t_mono_ns)
+            for item in items:
+                if type(item) is Frame:
+                    self._publish(item, self._step(item), chunk.t_mono_ns, t_unix_ns)
+                else:
+                    self._on_reply(item)  # type: ignore[arg-type]
+        return True
+
+    def _read_folded(self, src: Source) -> bool:
+        """Read all that is waiting, filter every frame, publish the latest only."""
+        got = False
+        last: tuple[Frame, Estimate, int] | None = None
+        while (chunk := src.read(0.0)) is not None:
+            got = True
+            for item in self.parser.feed(chunk.data, chunk.t_mono_ns):
+                if type(item) is Frame:
+                    last = (item, self._step(item), chunk.t_mono_ns)
+                else:
+                    self._on_reply(item)  # type: ignore[arg-type]
+        now = time.monotonic_ns()
+        period = int(NS / (self.cfg.publish.publish_hz or 1.0))
+        self._next_publish = max(self._next_publish + period, now)
+        if last is not None:
+            frame, est, t_mono = last
+            self._publish(frame, est, t_mono, time.time_ns() - (now - t_mono))
+        return got
+
+    def _step(self, frame: Frame) -> Estimate:
+        self.seq += 1
+        est = self.filter.step(frame.distance_m, frame.amp, frame.t_mono_ns)
+        self.health.count(est.status is Status.DROPOUT)
+        return est
+
+    def _publish(self, frame: Frame, est: Estimate, t_mono_ns: int, t_unix_ns: int) -> None:
+        reasons = self._reasons_json.get(est.reasons)
+        if reasons is None:
+            reasons = self._reasons_json[est.reasons] = reasons_json(est.reasons)
+        payload = encode_range(
+            self._sensor_json,
+            self.seq,
+            t_mono_ns,
+            t_unix_ns,
+            frame.distance_m,
+            frame.amp,
+            frame.temp_c,
+            est.strength,
+            est.range_m,
+            est.sigma_m,
+            est.lux_est,
+            est.status.value,
+            reasons,
+            est.zone.value,
+        )
+        self.pub.send(self._range_topic, payload)  # type: ignore[union-attr]
+
+    def _after_read(self, got: bool) -> None:
+        now = time.monotonic_ns()
+        health = self.health
+        if got:
+            self._last_bytes = now
+            if health.state is not State.CONNECTED:
+                log.info("data arriving from %s", self._source_desc())
+                self._set_state(State.CONNECTED, now)
+        elif health.state is State.CONNECTED and now - self._last_bytes > WAITING_AFTER_S * NS:
+            log.warning("no data from %s for %.1f s", self._source_desc(), WAITING_AFTER_S)
+            self._set_state(State.WAITING, now)
+        if self._version_deadline is not None:
+            if health.firmware is not None:
+                self._version_deadline = None
+            elif now >= self._version_deadline:
+                log.warning(
+                    "sensor on %s did not answer the version query within %.1f s; "
+                    "carrying on with whatever data arrives",
+                    self._source_desc(),
+                    VERSION_TIMEOUT_S,
+                )
+                self._version_deadline = None
+
+    # -- housekeeping ---------------------------------------------------------
+
+    def _set_state(self, state: State, now: int) -> None:
+        if self.health.state is not state:
+            self.health.state = state
+            self._next_health = now
+
+    def _publish_health(self, now: int) -> None:
+        pub = self.pub
+        assert pub is not None
+        msg = self.health.message(self.parser.stats, pub.dropped_sends, now)
+        pub.send(self._health_topic, encode_health(msg))
+        self._next_health = now + int(self.cfg.publish.health_interval_s * NS)
+        self.notifier.status(
+            f"{msg.state}, {msg.fps:.1f} fps, dropout {msg.dropout_ratio:.1%}, "
+            f"{msg.frames} frames, {msg.checksum_errors} checksum errors"
+        )
+
+    def _try_open(self, now: int) -> None:
+        try:
+            self._source = self._open(self.cfg.source)
+        except SourceOpenError as exc:
+            self.health.last_error = str(exc)
+            self._open_failures += 1
+            if self._open_failures == 1:
+                log.warning("%s; retrying every %.1f s at most", exc, BACKOFF_MAX_S)
+            elif (now - self._last_retry_log) / NS >= RETRY_LOG_EVERY_S:
+                log.warning(
+                    "still cannot open %s after %d tries", self._source_desc(), self._open_failures
+                )
+                self._last_retry_log = now
+            self._next_open = now + int(self._backoff * NS)
+            self._backoff = min(self._backoff * 2, BACKOFF_MAX_S)
+            self._set_state(State.RECONNECTING, now)
+            return
+        failures = self._open_failures
+        log.info("opened %s%s", self._source, f" after {failures} failed tries" if failures else "")
+        self._open_failures = 0
+        self._backoff = BACKOFF_FIRST_S
+        self._last_bytes = now
+        self._set_state(State.WAITING, now)
+        self._version_deadline = self._configure(now)
+
+    def _lost(self, exc: SourceLostError) -> None:
+        log.warning("lost %s: %s; reconnecting", self._source_desc(), exc)
+        self.health.last_error = str(exc)
+        self._drop_source()
+        now = time.monotonic_ns()
+        self._next_open = now + int(BACKOFF_FIRST_S * NS)
+        self._backoff = BACKOFF_FIRST_S * 2
+        self._set_state(State.RECONNECTING, now)
+
+    def _on_reply(self, reply: CommandReply) -> None:
         value = decode_reply(reply)
         if reply.cmd_id == CommandId.GET_VERSION:
-            health.firmware = str(value)
+            self.health.firmware = str(value)
             log.info("sensor firmware %s", value)
         elif reply.cmd_id == CommandId.SAMPLE_FREQ:
             wanted = self.cfg.sensor.frame_rate_hz
@@ -243,7 +363,7 @@ class Daemon:
     def _configure(self, now: int) -> int | None:
         """Ask for the firmware version, set rate and output; returns the reply deadline."""
         src = self._source
-        if src is None or not self.cfg.sensor.configure:
+        if src is None or not self.cfg.sensor.configure or self.cfg.source.kind == "replay":
             return None
         try:
             src.write(
@@ -254,7 +374,7 @@ class Daemon:
         except SourceLostError as exc:
             log.warning("cannot configure the sensor: %s", exc)
             return None
-        return now + int(VERSION_TIMEOUT_S * 1e9)
+        return now + int(VERSION_TIMEOUT_S * NS)
 
     def _drop_source(self) -> None:
         src, self._source = self._source, None
@@ -263,6 +383,50 @@ class Daemon:
         self.parser.reset()
         self.filter.reset()
 
+    def _source_desc(self) -> str:
+        s = self.cfg.source
+        if s.kind == "serial":
+            return f"serial {s.device}"
+        if s.kind == "i2c":
+            return f"i2c bus {s.bus} address {s.address:#04x}"
+        return f"replay {s.path}"
 
-def _after(failures: int) -> str:
-    return f" after {failures} failed attempts" if failures else ""
+    def _reload(self, now: int) -> None:
+        """Re-read the config (SIGHUP); a bad one is refused and the old one stays."""
+        self.notifier.reloading()
+        where = self.config_path or "the command line"
+        try:
+            new = load_config(self.config_path, self.overrides)
+        except ConfigError as exc:
+            log.error("SIGHUP: keeping the running configuration: %s", exc)
+            self.notifier.ready()
+            return
+        old = self.cfg
+        changed = [
+            name
+            for name in ("sensor", "source", "publish", "filter", "log_level")
+            if getattr(new, name) != getattr(old, name)
+        ]
+        if new.publish.endpoint != old.publish.endpoint or new.publish.sndhwm != old.publish.sndhwm:
+            try:
+                pub = Publisher(new.publish.endpoint, new.publish.sndhwm)
+            except PublishError as exc:
+                log.error("SIGHUP: keeping the running configuration: %s", exc)
+                self.notifier.ready()
+                return
+            old_pub, self.pub = self.pub, pub
+            pub.start_waker(self._wake_loop)
+            if old_pub is not None:
+                old_pub.close()
+        self._apply(new)
+        self.health.sensor = new.sensor.name
+        if new.source != old.source or new.sensor != old.sensor:
+            self._drop_source()
+            self._next_open = now
+        log.info(
+            "SIGHUP: configuration reloaded from %s (changed: %s)",
+            where,
+            ", ".join(changed) or "nothing",
+        )
+        self._next_health = now
+        self.notifier.ready()

@@ -67,6 +67,8 @@ class Source(ABC):
 
 BACKENDS: dict[str, tuple[str, str]] = {
     "serial": ("lunad.daemon.serial_source", "SerialSource"),
+    "i2c": ("lunad.daemon.i2c_source", "I2CSource"),
+    "replay": ("lunad.daemon.replay_source", "ReplaySource"),
 }
 """Source kind -> (module, class); the module is imported only when used."""
 

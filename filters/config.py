@@ -70,9 +70,14 @@ class FilterConfig:
         lux_init: ambient light assumed when a track starts, lux.
         sigma_floor_m: the published sigma never goes below this, metres: the 1 cm
             output steps leave a bias no averaging removes (resolution / sqrt(12)).
-        hysteresis: relative band around the S, lux and zone thresholds: a state is
-            entered at the threshold and left only this fraction beyond it.
+        hysteresis: relative band around the amp, S and ambient-lux thresholds: a
+            state is entered at the threshold and left only this fraction beyond it.
+            10 % is about three sigma of the amp's own jitter.
+        zone_hysteresis: the same for the zone thresholds (lux, S, sigma), which
+            move more from frame to frame.
         range_hysteresis_m: band of the range gate, metres.
+        range_feed_margin_m: readings up to this far beyond max_range_m still feed
+            the filter (not published), so that the gate does not bias it, metres.
         lux_high_ambient: estimated lux above which output is ``degraded`` with
             reason ``high_ambient``.
         lux_stable_max, s_stable_min, sigma_stable_max_m: the ``stable`` zone needs
@@ -94,12 +99,14 @@ class FilterConfig:
     init_speed_sigma_m_s: float = 1.0
     gate_sigmas: float = 4.0
     step_confirm: int = 2
-    lux_tau_s: float = 0.125
+    lux_tau_s: float = 0.1
     lux_clip_sigmas: float = 2.5
     lux_init: float = 0.0
-    sigma_floor_m: float = 0.003
-    hysteresis: float = 0.2
+    sigma_floor_m: float = 0.002
+    hysteresis: float = 0.1
+    zone_hysteresis: float = 0.2
     range_hysteresis_m: float = 0.05
+    range_feed_margin_m: float = 1.0
     lux_high_ambient: float = LUX_HIGH_AMBIENT
     lux_stable_max: float = LUX_STABLE_MAX
     s_stable_min: float = S_STABLE_MIN
@@ -111,7 +118,14 @@ class FilterConfig:
     def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)
-            if f.name in ("lux_init", "hysteresis", "range_hysteresis_m", "accel_psd"):
+            if f.name in (
+                "lux_init",
+                "hysteresis",
+                "zone_hysteresis",
+                "range_hysteresis_m",
+                "range_feed_margin_m",
+                "accel_psd",
+            ):
                 ok = value >= 0
             else:
                 ok = value > 0

@@ -7,8 +7,9 @@ e = z - x_pred has variance
     V = P_pred + c^2 / S^2 + q          (q = resolution^2 / 12, the 1 cm steps)
 
 so each reading gives an unbiased sample of c^2:  (e^2 - P_pred - q) S^2. We average
-these with an exponential window of time constant tau (0.125 s: 32 frames at 250 Hz,
-within 2 % of a new level after 0.5 s), and then
+these with an exponential window of time constant tau (0.1 s: 25 frames at 250 Hz;
+after 0.5 s less than 1 % of the old level remains, and c_hat scatters by about
+10 % from frame to frame, since the window holds about 50 readings), and then
 
     L_hat = (c_hat - sigma0) / k        (published clipped at 0)
 
@@ -17,8 +18,8 @@ Robustness (spikes, steps): before it enters the average, e^2 is winsorised at
 c^2 by at most alpha (6.25 / kappa - 1), a few percent, instead of dragging it by
 orders of magnitude. kappa = E[min(Z^2, 2.5^2)] = 0.978 removes the clipping's bias
 for Gaussian noise. The same clip bounds how fast c_hat can grow when it is far too
-small (x1.17 per frame at 250 Hz), so a sudden sun still converges in a few dozen
-frames. Departure from the paper: it treats L as known; here it is inferred.
+small (x1.1 per frame in c at 250 Hz), so a sudden sun still converges in a few
+dozen frames. Departure from the paper: it treats L as known; here it is inferred.
 
 A sensor whose constants differ from the configured sigma0 and k (``noise_scale``)
 is absorbed: the filter only ever uses c_hat, which is measured. L_hat is then biased:

@@ -12,7 +12,11 @@ Hysteresis (our addition; the paper has sharp thresholds): once a reading was we
 the next ones stay weak until amp >= amp_min (1 + h) and S >= S_min (1 + h); once
 out of range, until the distance is range_hysteresis_m inside the gate. Readings in
 these bands are still physically valid, so the filter may learn from them; only
-the published status stays ``dropout``. That keeps a target hovering at a threshold
+the published status stays ``dropout``. Likewise a distance up to
+``range_feed_margin_m`` beyond max_range_m is fed to the filter though not
+published: dropping it would censor the noise and bias the estimate of a target
+just inside the limit (a target at 8.1 m would be tracked at 7.95 m from the
+readings that happen to fall below 8 m). That keeps a target hovering at a threshold
 from flapping between ok and dropout every other frame.
 
 ``high_ambient`` from the lux estimate marks output ``degraded`` (not a dropout:
@@ -47,6 +51,7 @@ class DropoutPolicy:
         "_amp_ref",
         "_lux_enter",
         "_lux_exit",
+        "_max_feed",
         "_max_in",
         "_max_m",
         "_min_in",
@@ -70,6 +75,7 @@ class DropoutPolicy:
         self._max_m = config.max_range_m
         self._min_in = config.min_range_m + config.range_hysteresis_m
         self._max_in = config.max_range_m - config.range_hysteresis_m
+        self._max_feed = config.max_range_m + config.range_feed_margin_m
         self._lux_enter = config.lux_high_ambient
         self._lux_exit = config.lux_high_ambient * (1.0 - h)
         self.reset()
@@ -110,10 +116,14 @@ class DropoutPolicy:
         else:
             out = outside
         self.out_of_range = out
-        self.usable = not (below or outside)
+        self.usable = not below and self._min_m <= raw_m <= self._max_feed
         if weak:
             return _WEAK_OUT if out else _WEAK
         return _OUT if out else NO_REASONS
+
+    def outside(self, range_m: float) -> bool:
+        """Whether a filtered range is outside the published range [min, max], metres."""
+        return range_m < self._min_m or range_m > self._max_m
 
     def high_ambient(self, lux: float) -> bool:
         """Whether the lux estimate says ambient light is high, with hysteresis."""

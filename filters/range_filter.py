@@ -4,7 +4,8 @@ How this works, per frame (DESIGN.md "Data flow of one reading"):
 
 1. S = amp / amp_ref (paper eq. 1, with amp_ref from calibration).
 2. Hard gates with hysteresis (policy.py) -> ``dropout``. A reading inside a
-   hysteresis band is still fed to the filter, only not published.
+   hysteresis band, or a little beyond the range, is still fed to the filter, only
+   not published; an estimate outside the range is not published either.
 3. Constant-velocity Kalman filter (kalman.py). Each reading's variance is
    r = ((sigma0 + k L_hat) / S)^2 + resolution^2 / 12: the paper's eqs 2-3 with
    the lux estimate in place of the unknown L, plus the 1 cm quantisation
@@ -35,6 +36,7 @@ _OUTLIER_AMBIENT = (Reason.OUTLIER, Reason.HIGH_AMBIENT)
 _AMBIENT = (Reason.HIGH_AMBIENT,)
 _NONE: tuple[Reason, ...] = ()
 _STALE = (Reason.STALE,)
+_OUT_OF_RANGE = (Reason.OUT_OF_RANGE,)
 
 
 class RangeFilter:
@@ -123,6 +125,8 @@ class RangeFilter:
         elif tr.active:
             tr.predict(dt)
         lux = self.lux.lux if self._have_lux else None
+        if not reasons and tr.active and pol.outside(tr.x):
+            reasons = _OUT_OF_RANGE
         if reasons or not tr.active:
             if t - self._last_accept_ns > self._stale_ns:
                 reasons = (*reasons, Reason.STALE) if reasons else _STALE

@@ -13,7 +13,7 @@ calibration distance), so the zone uses the three things the filter knows:
 0.35 is R cos(theta) at the corner of the paper's region (0.5 cos 45 deg). Departure:
 our S also falls with distance squared (amp does), so a white target far away counts
 as a dark one, which matches its noise. Hysteresis: a zone is left only when the
-values are beyond its thresholds by the relative band ``hysteresis``.
+values are beyond its thresholds by the relative band ``zone_hysteresis``.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ class ZoneClassifier:
     )
 
     def __init__(self, config: FilterConfig) -> None:
-        self._h = config.hysteresis
+        self._h = config.zone_hysteresis
         self._lux_stable = config.lux_stable_max
         self._s_stable = config.s_stable_min
         self._sig_stable = config.sigma_stable_max_m

@@ -7,8 +7,11 @@
 
 ZeroMQ reconnects a SUB socket by itself, so a daemon restart needs nothing from the
 caller. The subscriber checks every ``range`` message's ``seq`` and counts the messages
-it missed in ``lost`` (a daemon restart, seen as ``seq`` going back, is not a loss).
-Messages that do not decode are counted in ``bad_messages`` and skipped.
+it missed in ``lost`` (a daemon restart, seen as ``seq`` going back, is not a loss; in
+the daemon's ``--publish-hz`` mode the gaps are frames folded on purpose). A message
+repeating the last ``seq`` is the daemon's last-value cache answering another
+subscriber's arrival, and is dropped. Messages that do not decode are counted in
+``bad_messages`` and skipped.
 """
 
 from __future__ import annotations
@@ -87,8 +90,8 @@ class Subscriber:
             except (ValueError, ValidationError):
                 self.bad_messages += 1
                 continue
-            if isinstance(msg, RangeMessage):
-                self._track(msg.seq)
+            if isinstance(msg, RangeMessage) and not self._track(msg.seq):
+                continue
             return msg
 
     def __iter__(self) -> Iterator[Message]:
@@ -97,11 +100,16 @@ class Subscriber:
             if msg is not None:
                 yield msg
 
-    def _track(self, seq: int) -> None:
+    def _track(self, seq: int) -> bool:
+        """Note ``seq``; False for a repeat of the last one (a cache replay)."""
         last = self.last_seq
-        if last is not None and seq > last + 1:
-            self.lost += seq - last - 1
+        if last is not None:
+            if seq == last:
+                return False
+            if seq > last + 1:
+                self.lost += seq - last - 1
         self.last_seq = seq
+        return True
 
     def close(self) -> None:
         """Close the socket; safe to call twice."""

@@ -53,7 +53,7 @@ REPLY_LENGTHS: dict[int, int] = {
     CommandId.READ_MANU_BIN: 18,
     CommandId.GET_FULL_VERSION: 30,
     CommandId.AMP_THRESHOLD: 7,
-    CommandId.DIST_LIMIT: 8,
+    CommandId.DIST_LIMIT: 9,
 }
 """Total length of each reply the sensor sends (TFLUNA.md 2.2; 0x12 and 0x14 computed
 from their layouts). The parser accepts a ``5A`` frame only with a known (ID, Len)

@@ -11,6 +11,24 @@ sensor turns S into the ``amp`` field with ``amp = S * AMP_REF`` and applies the
 sensor's rules (TFLUNA.md section 4): amp below 100 reports distance 0, distances are
 quantised to 1 cm.
 
+The realistic profile (:class:`RealisticSensor`) is what the daemon meets in the
+field, for scenarios and ``lunad eval``:
+
+    amp   = AMP_REF R cos(theta) (2 m / d)^2 (1 + 3 % N(0, 1))   falls with d^2
+    S     = amp / AMP_REF                          what the sensor lets us observe
+    sigma = f (sigma0 + k L) / S                   paper eq. 2-3 structure, f = noise_scale
+    D     = round_cm(d + N(0, sigma) [+ spike])    1 cm output steps (DS p.2)
+
+with the sensor's own rules (TFLUNA.md section 4): amp < 100 reports distance 0
+(M05 p.16); amp that would exceed 65535 reads 65535, saturated (M05 p.14); a strong
+but unsaturated signal tops out at 30000 ("normally Amp should not be above 30000",
+M05 p.14); ambient light beyond the 70 klux immunity (DS p.2) reads amp > 32768
+(M05 p.14); distances are clamped to the default Dist_max of 900 cm (M05 p.16).
+In the 20 cm blind zone the reading is drawn as usual; the daemon's range gate
+drops it. Rare multipath spikes (two targets in the beam, M05 p.10) add a longer
+path to one reading. sigma0 and k are fitted to the datasheet repeatability table
+at L = 0 (M05 p.9 Table 2): see REALISTIC_SIGMA0_M.
+
 This module never imports ``lunad.filters``: the truth generator must not share code
 with the estimator it judges (DESIGN.md).
 """
@@ -30,6 +48,33 @@ AMP_WEAK = 100  # below this the sensor reports dummy distance 0 (M05 p.16)
 AMP_MAX = 0xFFFF  # 16-bit field; 65535 means overexposure (M05 p.14)
 PAPER_SIGMA0_M = 0.01  # eq. 2, sigma0, read in metres (docs/paper-model.md)
 PAPER_K_M_PER_LUX = 0.0001  # eq. 2, k, metres per lux
+
+REF_DISTANCE_M = 2.0  # distance at which amp = AMP_REF * R cos(theta) (calibration, DESIGN.md)
+AMP_SIGNAL_MAX = 30000  # "normally Amp should not be above 30000", M05 p.14
+AMP_AMBIENT = 32768  # amp above this flags ambient overexposure, M05 p.14
+AMBIENT_IMMUNITY_LUX = 70_000.0  # ambient light immunity, DS p.2
+DIST_MAX_CM = 900  # default Dist_max, M05 p.16 (output clamps there, silence = 0)
+
+REALISTIC_SIGMA0_M = 0.004
+"""sigma0 of the realistic profile, metres. With S = amp / 2000 and 1 cm steps,
+sigma0 / S gives 0.49 cm at amp 2000, 0.85 cm at 1000, 2.0 cm at 400 against the
+datasheet's 0.5, 1 and 2 cm (M05 p.9 Table 2). The 1/S law of paper eq. 3 is steeper
+than the table below amp 400 (4 and 8 cm at amp 200 and 100, table: 3 cm) and than
+the repeatability-versus-distance table (M05 p.10 Table 3): a dark or far target is
+noisier here than on the datasheet."""
+
+REALISTIC_K_M_PER_LUX = 2.5e-7
+"""k of the realistic profile, metres per lux: sigma at S = 1 grows 4.6x from dark
+to 60 klux, the ratio of the paper's Table I mean errors above 50 klux (6.9 cm) and
+below 5 klux (1.5 cm). The paper's own 1e-4 m/lux gives 5 m at 50 klux."""
+
+AMP_NOISE_FRACTION = 0.03
+"""Relative one-sigma jitter of the reported amp (our choice; the datasheet gives no
+figure). It makes a target at a threshold cross it back and forth, as real ones do."""
+
+SPIKE_PROBABILITY = 0.002  # multipath spikes per reading (our choice: "rare")
+SPIKE_MIN_M = 0.3  # a spike adds a longer path of 0.3 ...
+SPIKE_MAX_M = 2.0  # ... to 2 m (two targets in the beam, M05 p.10)
 
 
 @dataclass(frozen=True, slots=True)
@@ -56,10 +101,16 @@ class RawReading:
     Attributes:
         dist_cm: reported distance, centimetres (0 when the sensor reports none).
         amp: reported signal strength.
+        sigma_m: the true one-sigma noise this reading was drawn with, metres, before
+            the 1 cm quantisation; None when the sensor reported no distance. Only
+            a simulator knows it: ``lunad eval``'s oracle filter uses it.
+        spike: True when a multipath spike was added to this reading.
     """
 
     dist_cm: int
     amp: int
+    sigma_m: float | None = None
+    spike: bool = False
 
 
 class PaperSensor:
@@ -83,4 +134,74 @@ class PaperSensor:
             return RawReading(0, amp)
         sigma = self.sigma0_m + self.k_m_per_lux * truth.lux
         d = truth.distance_m + rng.gauss(0.0, sigma) / s
-        return RawReading(max(0, min(0xFFFF, round(d * 100.0))), amp)
+        return RawReading(max(0, min(0xFFFF, round(d * 100.0))), amp, sigma / s)
+
+
+class RealisticSensor:
+    """The realistic profile: amp from R, cos(theta) and d^2, sensor rules, spikes.
+
+    Args:
+        noise_scale: multiplies sigma0 and k (2.0 or 0.5 model a sensor that is
+            not the one the filter was configured for).
+        sigma0_m, k_m_per_lux: paper eq. 2 constants before scaling, metres and
+            metres per lux.
+        amp_ref: amp for S = 1 at REF_DISTANCE_M.
+        spike_probability: chance per reading of a multipath spike.
+        amp_noise: relative one-sigma jitter of the reported amp.
+    """
+
+    def __init__(
+        self,
+        noise_scale: float = 1.0,
+        *,
+        sigma0_m: float = REALISTIC_SIGMA0_M,
+        k_m_per_lux: float = REALISTIC_K_M_PER_LUX,
+        amp_ref: float = AMP_REF,
+        spike_probability: float = SPIKE_PROBABILITY,
+        amp_noise: float = AMP_NOISE_FRACTION,
+    ) -> None:
+        if noise_scale <= 0.0:
+            raise ValueError(f"noise_scale must be positive, got {noise_scale!r}")
+        self.noise_scale = noise_scale
+        self.sigma0_m = sigma0_m * noise_scale
+        self.k_m_per_lux = k_m_per_lux * noise_scale
+        self.amp_ref = amp_ref
+        self.spike_probability = spike_probability
+        self.amp_noise = amp_noise
+
+    def amp_of(self, truth: Truth) -> float:
+        """Received signal before the sensor's limits: AMP_REF R cos(theta) (2 m / d)^2."""
+        cos = math.cos(math.radians(truth.angle_deg))
+        if cos <= 0.0 or truth.reflectivity <= 0.0:
+            return 0.0
+        d = max(truth.distance_m, 0.01)
+        g = REF_DISTANCE_M / d
+        return self.amp_ref * truth.reflectivity * cos * g * g
+
+    def sigma_of(self, truth: Truth, amp: int) -> float:
+        """One-sigma noise of a reading with this ``amp`` under ``truth``'s light, metres."""
+        s = amp / self.amp_ref
+        return (self.sigma0_m + self.k_m_per_lux * truth.lux) / s
+
+    def sample(self, truth: Truth, rng: random.Random) -> RawReading:
+        """Draw one reading for ``truth`` using ``rng``."""
+        amp_f = self.amp_of(truth)
+        if self.amp_noise > 0.0:
+            amp_f *= 1.0 + self.amp_noise * rng.gauss(0.0, 1.0)
+        if amp_f >= AMP_MAX:
+            amp = AMP_MAX
+        else:
+            amp = max(0, min(AMP_SIGNAL_MAX, round(amp_f)))
+        if amp < AMP_WEAK:
+            return RawReading(0, amp)
+        sigma = self.sigma_of(truth, amp)
+        d = truth.distance_m + rng.gauss(0.0, sigma)
+        spike = rng.random() < self.spike_probability
+        if spike:
+            d += rng.uniform(SPIKE_MIN_M, SPIKE_MAX_M)
+        if truth.lux > AMBIENT_IMMUNITY_LUX and amp != AMP_MAX:
+            # The sensor's ambient flag: amp jumps above 32768 (M05 p.14); the
+            # distance it sends then is undocumented, we keep the noisy one.
+            amp = min(AMP_MAX - 1, AMP_AMBIENT + 1 + amp)
+        dist_cm = max(0, min(DIST_MAX_CM, round(d * 100.0)))
+        return RawReading(dist_cm, amp, sigma, spike)

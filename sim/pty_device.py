@@ -216,8 +216,8 @@ class PtyDevice:
                 if master is not None and master == self._master:
                     if master in readable:
                         self._read_commands(master, inbuf)
-                    if self.sensor.trigger_pending:
-                        self.sensor.trigger_pending = 0
+                    while self.sensor.trigger_pending:
+                        self.sensor.trigger_pending -= 1
                         self._emit_frame()
                     if period and time.monotonic() >= next_t:
                         self._tick()

@@ -1,0 +1,136 @@
+"""``lunad sweep``: the paper's factorial sweep with Table I side by side, and the fit.
+
+How this works: the command runs ``lunad.sim.sweep.run_sweep`` for the chosen
+profiles (paper eqs 1-3 read literally, and the calibrated profile whose default
+parameters ``lunad sweep --fit`` produced), prints Table I's rows next to the model's,
+and optionally writes Fig. 2 / Fig. 3 style plots. ``--fit`` re-runs the fit
+(``lunad.sim.fit``) and prints parameters to paste into sim/paper_model.py.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from lunad.sim.paper_model import CALIBRATED_DEFAULT, PAPER_METRES, Profile
+from lunad.sim.sweep import (
+    DEFAULT_SEED,
+    PAPER_GRID,
+    RowResult,
+    format_json,
+    format_table,
+    run_sweep,
+)
+
+EPILOG = """examples:
+  lunad sweep                        both profiles, Table I side by side
+  lunad sweep --profile paper        equations 1-3 of the paper only
+  lunad sweep --format json          rows as JSON objects
+  lunad sweep --readings 200 --seed 7
+  lunad sweep --fit                  refit the calibrated profile (about 15 s)
+  lunad sweep --plot figs/           Fig. 2 / Fig. 3 style PNGs (needs matplotlib)
+"""
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    return value
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    """Register ``sweep`` on the ``lunad`` command line."""
+    p = subparsers.add_parser(
+        "sweep",
+        help="the paper's factorial sweep and its Table I side by side",
+        description=(
+            "Run the paper's full factorial sweep (lux 0-70,000, R 0.1-0.9, angle 0-85 deg,\n"
+            "D_true = 2 m) and print Table I's rows with the paper's numbers and the model's.\n"
+            "Profiles: 'paper' (equations 1-3, sigma in metres) and 'calibrated' (fitted to\n"
+            "Table I; see docs/paper-model.md)."
+        ),
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--profile", choices=("paper", "calibrated", "both"), default="both",
+                   help="which profile(s) to run (default: both)")
+    p.add_argument("--format", choices=("table", "json"), default="table", dest="fmt",
+                   help="output format (default: table)")
+    p.add_argument("--readings", type=_positive_int, default=1000, metavar="N",
+                   help="readings per cell (default: 1000, as in the paper)")
+    p.add_argument("--seed", type=int, default=DEFAULT_SEED,
+                   help=f"seed of the random generator (default: {DEFAULT_SEED})")
+    p.add_argument("--fit", action="store_true",
+                   help="refit the calibrated profile to Table I and print its parameters")
+    p.add_argument("--plot", type=Path, metavar="DIR",
+                   help="write Fig. 2 and Fig. 3 style PNGs into DIR (needs matplotlib)")
+    p.set_defaults(func=run)
+
+
+def _profiles(choice: str) -> list[Profile]:
+    return {
+        "paper": [PAPER_METRES],
+        "calibrated": [CALIBRATED_DEFAULT],
+        "both": [PAPER_METRES, CALIBRATED_DEFAULT],
+    }[choice]
+
+
+def _run_fit() -> int:
+    from lunad.sim.fit import fit, format_profile
+
+    result = fit()
+    print(f"fit: objective {result.objective:.4g}, {result.evaluations} evaluations,"
+          f" {result.seconds:.1f} s")
+    print(format_profile(result.profile))
+    print("To make these the default, replace CALIBRATED_DEFAULT in sim/paper_model.py.\n")
+    print("Table I from the fitted profile's exact expectation:")
+    print(format_table(result.rows))
+    print("text claims:")
+    for c in result.claims:
+        mark = "ok  " if c.holds else "FAIL"
+        print(f"  {mark} {c.name}: {c.mean_error_cm:.2f} cm, {c.failure_rate_pct:.1f} %")
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the sweep (or the fit); returns the process exit code."""
+    if args.fit:
+        return _run_fit()
+    profiles = _profiles(args.profile)
+    results: list[RowResult] = []
+    for profile in profiles:
+        results += run_sweep(profile, PAPER_GRID, args.readings, args.seed)
+    if args.fmt == "json":
+        if len(profiles) == 1:
+            objs = [r.to_json() for r in results]
+            for o in objs:
+                del o["profile"]
+            import json
+
+            print(json.dumps(objs, indent=2))
+        else:
+            print(format_json(results))
+    else:
+        print(format_table(results), end="")
+    if args.plot is not None:
+        try:
+            from lunad.sim.sweep import write_plots
+
+            paths = write_plots(profiles, args.plot, args.readings, args.seed)
+        except ModuleNotFoundError as exc:
+            if exc.name != "matplotlib" and not str(exc.name).startswith("matplotlib"):
+                raise
+            print("lunad sweep: --plot needs matplotlib; install the extra:"
+                  " pip install 'lunad[plot]'", file=sys.stderr)
+            return 1
+        except OSError as exc:
+            print(f"lunad sweep: cannot write plots to {args.plot}: {exc}", file=sys.stderr)
+            return 1
+        for path in paths:
+            print(f"wrote {path}", file=sys.stderr)
+    return 0

@@ -1,0 +1,438 @@
+"""I2C source through smbus2: a TF-Luna in trigger mode, read as UART frames.
+
+How this works. At open: probe the signature (0x3C..0x3F reads ``LUNA`` on A05
+firmware), read the firmware version (0x0A..0x0C), set MODE = trigger (0x23 = 1;
+Benewake "strongly recommends" triggering on a shared bus, M05 p.14) and note the
+current TICK. Then, per sample, as a small state machine driven by ``_read``::
+
+    TRIGGER  write TRIG_ONE_SHOT (0x24 = 1)                  -> READ after the settle
+    READ     one 8-byte block read from 0x00: dist, amp, temp, tick (TFLUNA.md 3.3)
+             tick changed    -> one UART data frame out      -> TRIGGER at the next slot
+             tick unchanged  -> stale: count it              -> TRIGGER again in 5 ms
+             5 stale in a row (ESPHome's hung-sensor rule)   -> REBOOT
+    REBOOT   write SHUTDOWN_REBOOT (0x21 = 2)                -> MODE after 1 s
+    MODE     write MODE = trigger, read TICK (a reboot restores MODE = continuous,
+             as we never save it: no flash writes)           -> TRIGGER
+
+Waits (frame pacing on an absolute schedule, the settle, retries, the reboot) are
+``threading.Event`` waits bounded by the caller's timeout, so ``cancel`` wakes them and
+a ``_read`` never blocks much longer than asked (one transfer, well under 1 ms at
+100 kHz); an unfinished step is picked up by the next ``_read``. Any ``OSError`` from
+a transfer (NACK errno 121, bus timeout, EIO) is counted in ``nacks`` and the step is
+retried with backoff (5 ms doubling to 200 ms); after 2 s without a good read the
+source raises ``SourceLostError`` and the daemon reopens it with its own backoff.
+
+Each sample leaves as a 9-byte UART data frame (``encode_frame``), the temperature
+converted from 0.01 degC (I2C, M05 p.34) to the UART's raw/8 - 256 (M05 p.24), so the
+daemon has one parser path and one record format (DESIGN.md). ``write`` emulates the
+UART command layer the daemon speaks at connect: GET_VERSION, SAMPLE_FREQ, OUTPUT_EN
+and SAMPLE_TRIG get the replies a UART sensor would send; other IDs are ignored.
+"""
+
+from __future__ import annotations
+
+import enum
+import errno
+import logging
+import struct
+import threading
+import time
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Protocol
+
+from lunad.daemon.errors import SourceLostError, SourceOpenError
+from lunad.daemon.source import Source
+from lunad.protocol.commands import (
+    FRAME_RATES_HZ,
+    I2C_ADDRESS_MAX,
+    I2C_ADDRESS_MIN,
+    CommandId,
+    Version,
+    encode_reply,
+    split_commands,
+)
+from lunad.protocol.frame import encode_frame, temp_raw_from_c
+from lunad.protocol.registers import (
+    I2C_ADDRESS_DEFAULT,
+    I2C_REBOOT_SETTLE_S,
+    REBOOT_VALUE,
+    SAMPLE_BLOCK_LEN,
+    SIGNATURE,
+    TRIGGER_VALUE,
+    Mode,
+    Register,
+    decode_sample,
+)
+
+if TYPE_CHECKING:
+    from lunad.daemon.config import SourceSection
+
+log = logging.getLogger("lunad.i2c")
+
+SIM_BUS = "sim"  # bus name of the simulated sensor (lunad.sim.fake_i2c), like loop://
+DEFAULT_RATE_HZ = 100  # M05 p.9
+
+TRIGGER_SETTLE_S = 0.003
+"""Wait between the trigger write and the block read. The sensor measures at 500 Hz
+internally (M05 p.15), so one measurement is 2 ms; 3 ms leaves a margin. ESPHome reads
+at once and lets the stale-TICK retry absorb a slow sensor; waiting a little first
+keeps ``stale_ticks`` meaning "did not update" rather than "not yet"."""
+
+STALE_RETRY_S = 0.005  # after an unchanged TICK, trigger again this much later (ESPHome)
+STALE_REBOOT_AFTER = 5  # consecutive unchanged TICKs that mean a hung sensor (ESPHome)
+BACKOFF_FIRST_S = 0.005  # first retry after a failed transfer ...
+BACKOFF_MAX_S = 0.2  # ... doubling up to this
+LOST_AFTER_S = 2.0  # transfers failing this long: the sensor is gone (SourceLostError)
+OPEN_PROBE_TRIES = 3  # a sensor waking from ultra-low power NACKs the first read (TFLUNA.md 3.5)
+SIGNATURE_LEN = len(SIGNATURE)
+VERSION_LEN = 3  # VERSION_REVISION, MINOR, MAJOR at 0x0A..0x0C
+TICK_LEN = 2
+
+
+class SMBusLike(Protocol):
+    """The part of ``smbus2.SMBus`` this source uses (``lunad.sim.fake_i2c`` has it too)."""
+
+    def read_i2c_block_data(
+        self, i2c_addr: int, register: int, length: int, force: bool | None = None
+    ) -> list[int]: ...
+
+    def write_byte_data(
+        self, i2c_addr: int, register: int, value: int, force: bool | None = None
+    ) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class _Step(enum.Enum):
+    """What the next transfer of the sample state machine is."""
+
+    MODE = "mode"
+    TRIGGER = "trigger"
+    READ = "read"
+    REBOOT = "reboot"
+
+
+def _default_factory(bus: int | str) -> SMBusLike:
+    """``smbus2.SMBus`` for a bus number or path; the fake for ``sim``."""
+    if bus == SIM_BUS:
+        from lunad.sim.fake_i2c import FakeSMBus
+
+        return FakeSMBus()
+    import smbus2
+
+    bus_obj: SMBusLike = smbus2.SMBus(bus)
+    return bus_obj
+
+
+def _hint(exc: OSError) -> str:
+    """A likely cause for an errno seen when opening, for the log and health."""
+    if exc.errno == errno.EREMOTEIO:
+        return " (NACK: sensor absent, in ultra-low power, or wired for UART?)"
+    if exc.errno == errno.ENOENT:
+        return " (I2C not enabled? on a Raspberry Pi: raspi-config, Interface Options, I2C)"
+    if exc.errno == errno.EACCES:
+        return " (no permission: add the user to group i2c)"
+    if exc.errno in (errno.ETIMEDOUT, errno.EIO):
+        return " (bus error: check SDA/SCL wiring and pull-ups)"
+    return ""
+
+
+class I2CSource(Source):
+    """A TF-Luna in I2C mode (pin 5 to GND at power-up, M05 p.12), read in trigger mode.
+
+    Args:
+        bus: I2C bus number (``1`` or ``"1"`` for /dev/i2c-1), a device path, or
+            ``"sim"`` for the simulated sensor.
+        address: 7-bit slave address, 0x08..0x77 (default 0x10, M05 p.13).
+        rate_hz: samples per second; 0 samples only on a SAMPLE_TRIG command.
+        smbus_factory: makes the bus object from ``bus``; ``smbus2.SMBus`` (or the
+            fake for ``sim``) when None. Tests pass a factory returning a fake.
+
+    Attributes:
+        samples: new samples returned as frames.
+        stale_ticks: block reads whose TICK had not changed (no new sample).
+        nacks: transfers that failed with ``OSError`` (NACK or bus error), open included.
+        reboots: reboots issued to a hung sensor.
+        version: firmware version read at open.
+        signature: the 4 bytes at 0x3C (``b"LUNA"`` on A05 firmware).
+
+    Raises:
+        SourceOpenError: the bus cannot be opened or the sensor does not answer.
+        ValueError: ``address`` or ``rate_hz`` is out of range (caller misuse).
+    """
+
+    def __init__(
+        self,
+        bus: str | int,
+        address: int = I2C_ADDRESS_DEFAULT,
+        rate_hz: int = DEFAULT_RATE_HZ,
+        smbus_factory: Callable[[int | str], SMBusLike] | None = None,
+    ) -> None:
+        if not I2C_ADDRESS_MIN <= address <= I2C_ADDRESS_MAX:
+            raise ValueError(f"I2C address must be in 0x08..0x77, got {address:#04x}")
+        if rate_hz not in FRAME_RATES_HZ:
+            raise ValueError(f"rate must be 0 (on demand) or 500/n Hz (1..250), got {rate_hz}")
+        if isinstance(bus, str) and bus.isdigit():
+            bus = int(bus)
+        self.bus = bus
+        self.address = address
+        self.samples = 0
+        self.stale_ticks = 0
+        self.nacks = 0
+        self.reboots = 0
+        self.version = Version(0, 0, 0)
+        self.signature = b""
+        self._rate_hz = rate_hz
+        self._enabled = True
+        self._triggers_pending = 0
+        self._replies = bytearray()
+        self._commands = bytearray()
+        self._cancel = threading.Event()
+        self._step = _Step.TRIGGER
+        self._due_ns = 0  # earliest time of the next transfer (settle, retry, reboot)
+        self._next_sample_ns = time.monotonic_ns()  # the pacing schedule
+        self._retrying = False  # the current sample is a retry: ignore the schedule
+        self._last_tick: int | None = None
+        self._stale_run = 0
+        self._failing_since_ns: int | None = None
+        self._backoff_s = BACKOFF_FIRST_S
+        factory = smbus_factory or _default_factory
+        try:
+            self._bus: SMBusLike | None = factory(bus)
+        except OSError as exc:
+            raise SourceOpenError(f"cannot open {self}: {exc}{_hint(exc)}") from exc
+        try:
+            self._start()
+        except BaseException:
+            self.close()
+            raise
+
+    @classmethod
+    def from_config(cls, cfg: SourceSection) -> I2CSource:
+        """Open the sensor ``cfg`` names; ``cfg.rate_hz`` is the sensor's frame rate."""
+        return cls(cfg.bus, cfg.address, getattr(cfg, "rate_hz", DEFAULT_RATE_HZ))
+
+    def __str__(self) -> str:
+        return f"i2c bus {self.bus} address {self.address:#04x}"
+
+    @property
+    def rate_hz(self) -> int:
+        """Current sampling rate, Hz (0: only on SAMPLE_TRIG)."""
+        return self._rate_hz
+
+    # -- open -----------------------------------------------------------------------
+
+    def _start(self) -> None:
+        """Probe, read the version, select trigger mode; OSError -> SourceOpenError."""
+        sig: list[int] = []
+        for attempt in range(OPEN_PROBE_TRIES):
+            try:
+                sig = self._block(Register.SIGNATURE, SIGNATURE_LEN)
+                break
+            except OSError as exc:
+                self.nacks += 1
+                if attempt == OPEN_PROBE_TRIES - 1:
+                    raise SourceOpenError(f"cannot open {self}: {exc}{_hint(exc)}") from exc
+                time.sleep(BACKOFF_FIRST_S * 2**attempt)
+        self.signature = bytes(sig)
+        try:
+            rev, minor, major = self._block(Register.VERSION_REVISION, VERSION_LEN)
+            self.version = Version(major=major, minor=minor, revision=rev)
+            self._set_trigger_mode()
+        except OSError as exc:
+            self.nacks += 1
+            raise SourceOpenError(f"cannot set up {self}: {exc}{_hint(exc)}") from exc
+        if self.signature == SIGNATURE:
+            log.info("%s: TF-Luna signature LUNA, firmware %s", self, self.version)
+        elif not any(self.signature):
+            log.info("%s: no signature (firmware %s predates A05); carrying on", self, self.version)
+        else:
+            log.warning(
+                "%s: signature %s is not LUNA; is this a TF-Luna? carrying on",
+                self,
+                self.signature.hex(" "),
+            )
+
+    # -- the sample state machine -----------------------------------------------------
+
+    def _read(self, timeout_s: float | None) -> bytes:
+        if self._bus is None:
+            raise SourceLostError(f"{self}: closed")
+        if self._replies:
+            out = bytes(self._replies)
+            self._replies.clear()
+            return out
+        deadline = None if timeout_s is None else time.monotonic_ns() + int(timeout_s * 1e9)
+        while True:
+            now = time.monotonic_ns()
+            due = self._action_due_ns()
+            if due is not None and due <= now:
+                frame = self._act(now)
+                if frame:
+                    return frame
+                continue
+            if deadline is not None and now >= deadline:
+                return b""
+            wake = due if deadline is None else deadline if due is None else min(due, deadline)
+            wait_s = None if wake is None else (wake - now) / 1e9
+            if self._cancel.wait(wait_s):
+                self._cancel.clear()
+                return b""
+
+    def _action_due_ns(self) -> int | None:
+        """When the next transfer should happen, or None when no sample is wanted."""
+        if self._step is not _Step.TRIGGER or self._retrying:
+            return self._due_ns
+        if self._triggers_pending:
+            return self._due_ns
+        if self._enabled and self._rate_hz:
+            return max(self._due_ns, self._next_sample_ns)
+        return None
+
+    def _act(self, now: int) -> bytes:
+        """Do the next transfer; return a frame when it completed a new sample."""
+        step = self._step
+        try:
+            if step is _Step.TRIGGER:
+                self._write(Register.TRIG_ONE_SHOT, TRIGGER_VALUE)
+                self._step = _Step.READ
+                self._due_ns = now + int(TRIGGER_SETTLE_S * 1e9)
+                return b""
+            if step is _Step.READ:
+                return self._read_sample(now)
+            if step is _Step.REBOOT:
+                self._write(Register.SHUTDOWN_REBOOT, REBOOT_VALUE)
+                self.reboots += 1
+                self._step = _Step.MODE
+                self._due_ns = now + int(I2C_REBOOT_SETTLE_S * 1e9)
+                return b""
+            self._set_trigger_mode()
+            self._step = _Step.TRIGGER
+            self._due_ns = now
+            return b""
+        except OSError as exc:
+            self._failed(now, exc)
+            return b""
+
+    def _read_sample(self, now: int) -> bytes:
+        s = decode_sample(self._block(Register.DIST_LOW, SAMPLE_BLOCK_LEN))
+        self._failing_since_ns = None
+        self._backoff_s = BACKOFF_FIRST_S
+        self._step = _Step.TRIGGER
+        if s.tick == self._last_tick:
+            self.stale_ticks += 1
+            self._stale_run += 1
+            self._retrying = True
+            if self._stale_run >= STALE_REBOOT_AFTER:
+                log.warning(
+                    "%s: TICK stuck at %d for %d reads, sensor hung; rebooting it",
+                    self,
+                    s.tick,
+                    self._stale_run,
+                )
+                self._step = _Step.REBOOT
+                self._stale_run = 0
+                self._due_ns = now
+            else:
+                self._due_ns = now + int(STALE_RETRY_S * 1e9)
+            return b""
+        self._last_tick = s.tick
+        self._stale_run = 0
+        self._retrying = False
+        self.samples += 1
+        if self._triggers_pending:
+            self._triggers_pending -= 1
+        elif self._rate_hz:
+            period_ns = 1_000_000_000 // self._rate_hz
+            self._next_sample_ns = max(self._next_sample_ns + period_ns, now)
+        # TEMP is 0.01 degC; read as signed so that a sub-zero chip is not 655 degC.
+        centi = s.temp_centi_c - 0x10000 if s.temp_centi_c >= 0x8000 else s.temp_centi_c
+        return encode_frame(s.dist_cm, s.amp, temp_raw_from_c(centi / 100.0))
+
+    def _failed(self, now: int, exc: OSError) -> None:
+        """Count a failed transfer; retry the step (a read restarts at the trigger)."""
+        self.nacks += 1
+        if self._failing_since_ns is None:
+            self._failing_since_ns = now
+        elif now - self._failing_since_ns >= LOST_AFTER_S * 1e9:
+            raise SourceLostError(
+                f"{self}: no answer for {LOST_AFTER_S:.0f} s ({self.nacks} failed transfers): "
+                f"{exc}{_hint(exc)}"
+            ) from exc
+        log.debug("%s: transfer failed (%s); retrying in %.3f s", self, exc, self._backoff_s)
+        if self._step is _Step.READ:
+            self._step = _Step.TRIGGER
+        self._retrying = True
+        self._due_ns = now + int(self._backoff_s * 1e9)
+        self._backoff_s = min(self._backoff_s * 2, BACKOFF_MAX_S)
+
+    def _set_trigger_mode(self) -> None:
+        """MODE = trigger, and take the current TICK as the one to move on from."""
+        self._write(Register.MODE, Mode.TRIGGER)
+        lo, hi = self._block(Register.TICK_LOW, TICK_LEN)
+        self._last_tick = lo | hi << 8
+
+    def _block(self, register: int, length: int) -> list[int]:
+        bus = self._bus
+        if bus is None:
+            raise SourceLostError(f"{self}: closed")
+        return bus.read_i2c_block_data(self.address, register, length)
+
+    def _write(self, register: int, value: int) -> None:
+        bus = self._bus
+        if bus is None:
+            raise SourceLostError(f"{self}: closed")
+        bus.write_byte_data(self.address, register, value)
+
+    # -- UART command emulation -------------------------------------------------------
+
+    def write(self, data: bytes) -> None:
+        """Take UART command frames and answer as a UART TF-Luna would (TFLUNA.md 2.2).
+
+        GET_VERSION answers from the version registers; SAMPLE_FREQ sets the pacing
+        (0: sample only on SAMPLE_TRIG) and echoes the rate in force; OUTPUT_EN
+        pauses or resumes sampling and echoes; SAMPLE_TRIG takes one sample on the
+        next read. Replies come out of the next ``read`` ahead of any sample.
+        """
+        self._commands += data
+        for cmd_id, payload in split_commands(self._commands):
+            self._command(cmd_id, payload)
+
+    def _command(self, cmd_id: int, payload: bytes) -> None:
+        try:
+            if cmd_id == CommandId.GET_VERSION:
+                v = self.version
+                self._replies += encode_reply(cmd_id, bytes((v.revision, v.minor, v.major)))
+            elif cmd_id == CommandId.SAMPLE_FREQ:
+                (hz,) = struct.unpack("<H", payload)
+                if hz in FRAME_RATES_HZ and hz != self._rate_hz:
+                    self._rate_hz = hz
+                    self._next_sample_ns = time.monotonic_ns()
+                self._replies += encode_reply(cmd_id, struct.pack("<H", self._rate_hz))
+            elif cmd_id == CommandId.OUTPUT_EN:
+                enabled = bool(payload[0])
+                if enabled and not self._enabled:
+                    self._next_sample_ns = time.monotonic_ns()
+                self._enabled = enabled
+                self._replies += encode_reply(cmd_id, bytes((int(enabled),)))
+            elif cmd_id == CommandId.SAMPLE_TRIG:
+                self._triggers_pending += 1
+            else:
+                log.debug("%s: ignoring UART command %#04x (no I2C equivalent)", self, cmd_id)
+        except (struct.error, IndexError):
+            log.debug("%s: malformed UART command %#04x %s", self, cmd_id, payload.hex(" "))
+
+    # -- lifecycle --------------------------------------------------------------------
+
+    def cancel(self) -> None:
+        """Wake a ``read`` waiting for the next sample; it returns no data."""
+        self._cancel.set()
+
+    def close(self) -> None:
+        """Release the bus; safe to call twice. The sensor stays in trigger mode."""
+        bus, self._bus = self._bus, None
+        if bus is not None:
+            try:
+                bus.close()
+            except OSError:
+                pass

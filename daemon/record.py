@@ -1,0 +1,498 @@
+"""Record raw source chunks to a file and replay them, as a writer/reader pair.
+
+How this works: the ``Recorder`` appends each ``Chunk`` (the bytes of one source read
+and its ``t_mono_ns``) as one length-prefixed, CRC-checked record; ``Replay`` iterates
+them back; ``paced`` spaces them out in real time from their timestamp deltas (python-
+can's ``Printer``/``LogReader``/``MessageSync`` split, ``can/io/generic.py``). Because
+the raw bytes and their original read times are kept, replay runs the same parser and
+filter on the same inputs and publishes the same readings as the live run did.
+
+Power cuts are expected on a robot: a record is written with one ``write`` call, so a cut
+leaves at most one torn record at the end. The reader stops quietly before it (counted in
+``torn_records``); opening the file for append truncates it first. The format table is in
+``Recorder``'s docstring.
+"""
+
+from __future__ import annotations
+
+import io
+import logging
+import math
+import os
+import struct
+import threading
+import time
+import zlib
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol
+
+from lunad.daemon.errors import LunadError
+from lunad.daemon.source import Chunk
+
+log = logging.getLogger(__name__)
+
+MAGIC = b"LUNAREC\n"  # '\n' catches a text-mode (CRLF) transfer, as PNG's signature does
+FORMAT_VERSION = 1
+FILE_SUFFIX = ".lunarec"
+_HEADER = struct.Struct("<8sHHqqH")  # magic, version, flags, unix ns, mono ns, desc length
+_CRC = struct.Struct("<I")
+_RECORD = struct.Struct("<QII")  # t_mono_ns, length, crc32
+_RECORD_CRC_SPAN = 12  # bytes of _RECORD the CRC covers: t_mono_ns and length
+MAX_DESC_BYTES = 1024
+MAX_RECORD_BYTES = 1 << 20
+"""Longest chunk accepted (1 MiB); a larger length on read is taken as corruption, so a
+garbage length field cannot make the reader swallow the rest of the file."""
+FSYNC_INTERVAL_S = 1.0
+_U64_MAX = (1 << 64) - 1
+
+
+class _ReadableFile(Protocol):
+    """The file calls the readers make; both ``io.FileIO`` and ``io.BufferedReader`` fit."""
+
+    def read(self, size: int = -1, /) -> bytes | None: ...
+    def seek(self, offset: int, whence: int = os.SEEK_SET, /) -> int: ...
+    def tell(self) -> int: ...
+
+
+class RecordFormatError(LunadError, ValueError):
+    """The file is not a lunad recording this version can read; the message names it."""
+
+
+class _TornHeaderError(RecordFormatError):
+    """The file is empty or ends inside its header: a cut while it was being created."""
+
+
+@dataclass(frozen=True, slots=True)
+class RecordingHeader:
+    """What the file header says about a recording.
+
+    ``created_unix_ns`` and ``created_mono_ns`` were read together when the file was
+    created, so ``created_unix_ns + (t_mono_ns - created_mono_ns)`` dates a record made
+    in the same boot.
+    """
+
+    version: int
+    created_unix_ns: int
+    created_mono_ns: int
+    source_desc: str
+
+
+def _encode_header(header: RecordingHeader) -> bytes:
+    desc = header.source_desc.encode()
+    body = _HEADER.pack(
+        MAGIC, header.version, 0, header.created_unix_ns, header.created_mono_ns, len(desc)
+    )
+    body += desc
+    return body + _CRC.pack(zlib.crc32(body))
+
+
+def _read_header(f: _ReadableFile, path: Path) -> RecordingHeader:
+    """Parse and check the header at the start of ``f``; leaves ``f`` after it.
+
+    Raises:
+        RecordFormatError: wrong magic, other version, corrupt header; its subclass
+            ``_TornHeaderError`` for an empty file or one that ends inside the header.
+    """
+    fixed = f.read(_HEADER.size) or b""
+    if not fixed:
+        raise _TornHeaderError(f"{path}: empty file, no recording header")
+    if not MAGIC.startswith(fixed[: len(MAGIC)]):
+        raise RecordFormatError(f"{path}: not a lunad recording (bad magic {fixed[:8]!r})")
+    if len(fixed) < _HEADER.size:
+        raise _TornHeaderError(f"{path}: header cut short ({len(fixed)} bytes), no records")
+    _magic, version, _flags, unix_ns, mono_ns, desc_len = _HEADER.unpack(fixed)
+    if version != FORMAT_VERSION:
+        raise RecordFormatError(
+            f"{path}: recording format version {version}; this lunad reads {FORMAT_VERSION}"
+        )
+    rest = f.read(desc_len + _CRC.size) or b""
+    if len(rest) < desc_len + _CRC.size:
+        raise _TornHeaderError(f"{path}: header cut short, no records")
+    desc = rest[:desc_len]
+    (crc,) = _CRC.unpack(rest[desc_len:])
+    if zlib.crc32(fixed + desc) != crc:
+        raise RecordFormatError(f"{path}: header checksum mismatch (corrupt file)")
+    return RecordingHeader(version, unix_ns, mono_ns, desc.decode(errors="replace"))
+
+
+@dataclass(slots=True)
+class _ScanState:
+    """Where the good records end, and what follows them (filled in by ``_records``)."""
+
+    good_end: int
+    torn_records: int = 0
+    trailing_bytes: int = 0
+
+
+def _records(f: _ReadableFile, state: _ScanState) -> Iterator[Chunk]:
+    """Yield the records of ``f`` from its position; stop at EOF or before a bad record.
+
+    A bad record (short, oversized length, wrong CRC) ends the scan: its length can no
+    longer be trusted, so nothing after it can be found. ``state`` records how far the
+    good part goes and how many bytes were left unread.
+    """
+    pos = state.good_end
+    while True:
+        head = f.read(_RECORD.size) or b""
+        if not head:
+            return
+        if len(head) == _RECORD.size:
+            t_mono_ns, length, crc = _RECORD.unpack(head)
+            if length <= MAX_RECORD_BYTES:
+                data = f.read(length) or b""
+                if (
+                    len(data) == length
+                    and zlib.crc32(data, zlib.crc32(head[:_RECORD_CRC_SPAN])) == crc
+                ):
+                    pos += _RECORD.size + length
+                    state.good_end = pos
+                    yield Chunk(data, t_mono_ns)
+                    continue
+        f.seek(0, os.SEEK_END)
+        state.torn_records = 1
+        state.trailing_bytes = f.tell() - pos
+        return
+
+
+def _fsync_dir(path: Path) -> None:
+    """Make a new file's directory entry durable (its data fsync does not cover it)."""
+    try:
+        fd = os.open(path.parent, os.O_RDONLY | os.O_DIRECTORY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+    except OSError as exc:  # some filesystems (FUSE, network) refuse it; data is still written
+        log.debug("%s: cannot fsync its directory: %s", path, exc)
+
+
+class Recorder:
+    """Appends chunks to a recording: ``with Recorder(path) as rec: rec(chunk)``.
+
+    File format, version 1 (all integers little-endian; CRC-32 as ``zlib.crc32``):
+
+    ======  =============  ===============================================================
+    offset  type           field
+    ======  =============  ===============================================================
+    **file header**, once
+    0       8 bytes        magic ``b"LUNAREC\\n"``
+    8       u16            format version, 1
+    10      u16            flags, 0 (reserved)
+    12      i64            ``created_unix_ns``: wall clock when the file was created
+    20      i64            ``created_mono_ns``: ``time.monotonic_ns()`` at the same moment
+    28      u16            ``n``: length of the source description
+    30      n bytes        source description, UTF-8 (e.g. ``serial /dev/ttyAMA0 115200 Bd``)
+    30+n    u32            CRC-32 of the 30+n bytes before it
+    **record**, repeated to the end of the file
+    +0      u64            ``t_mono_ns``: ``time.monotonic_ns()`` when the bytes were read
+    +8      u32            ``length``: number of data bytes, at most 1 MiB
+    +12     u32            CRC-32 of the 12 bytes at +0, then of the data
+    +16     length bytes   data: raw bytes exactly as the source returned them
+    ======  =============  ===============================================================
+
+    The file is append-only. Opening an existing recording checks its header, truncates
+    a torn last record (left by a power cut; logged) and appends after the last good
+    one; the header keeps the first session's description and creation time. Records
+    appended after a reboot restart the monotonic clock, so ``t_mono_ns`` may step back;
+    ``paced`` treats that as no gap.
+
+    Durability: each record is one unbuffered ``write``, so a crash of the process loses
+    nothing already passed to the recorder. ``fsync`` runs at most once per
+    ``fsync_interval_s`` (checked when a record is written) and on close, so a power cut
+    loses about a second of data at most, plus whatever arrived before an idle spell
+    that the kernel had not yet written back (about 30 s by default). Syncing every
+    record instead would issue 100+ flushes a second to an SD card, wearing it and
+    stalling the caller for tens of milliseconds each time.
+
+    Args:
+        path: the recording; created if missing, appended to if it exists.
+        source_desc: one line naming the source, stored in a new file's header.
+        fsync_interval_s: seconds between fsyncs; 0 syncs every record.
+
+    Raises:
+        RecordFormatError: ``path`` exists and is not a recording this version writes.
+        ValueError: ``source_desc`` is longer than 1024 bytes in UTF-8.
+        OSError: the file cannot be opened or written.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        source_desc: str = "",
+        *,
+        fsync_interval_s: float = FSYNC_INTERVAL_S,
+    ) -> None:
+        self.path = Path(path)
+        if len(source_desc.encode()) > MAX_DESC_BYTES:
+            raise ValueError(f"source_desc longer than {MAX_DESC_BYTES} bytes in UTF-8")
+        self.fsync_interval_s = fsync_interval_s
+        self.records = 0
+        """Records written by this Recorder (not counting earlier sessions)."""
+        self.bytes = 0
+        """Data bytes written by this Recorder (record headers not counted)."""
+        self.truncated_bytes = 0
+        """Bytes of a torn tail removed when appending to an existing file."""
+        self._file: io.FileIO | None = None
+        try:
+            f = open(self.path, "xb", buffering=0)
+        except FileExistsError:
+            self._file = self._open_existing(source_desc)
+        else:
+            self._file = f
+            try:
+                self._write_header(f, source_desc)
+            except BaseException:
+                f.close()
+                raise
+        self._last_sync = time.monotonic()
+
+    def _write_header(self, f: io.FileIO, source_desc: str) -> None:
+        header = RecordingHeader(FORMAT_VERSION, time.time_ns(), time.monotonic_ns(), source_desc)
+        f.write(_encode_header(header))
+        os.fsync(f.fileno())
+        _fsync_dir(self.path)
+
+    def _open_existing(self, source_desc: str) -> io.FileIO:
+        f = open(self.path, "r+b", buffering=0)
+        try:
+            try:
+                _read_header(f, self.path)
+            except _TornHeaderError:
+                # A cut while the header was being written: there are no records to keep.
+                if os.fstat(f.fileno()).st_size:
+                    log.warning("%s: header incomplete, starting it afresh", self.path)
+                f.seek(0)
+                f.truncate()
+                self._write_header(f, source_desc)
+                return f
+            state = _ScanState(good_end=f.tell())
+            for _ in _records(f, state):
+                pass
+            if state.trailing_bytes:
+                log.warning(
+                    "%s: dropping a torn last record (%d bytes) before appending",
+                    self.path,
+                    state.trailing_bytes,
+                )
+                f.truncate(state.good_end)
+                self.truncated_bytes = state.trailing_bytes
+            f.seek(state.good_end)
+            return f
+        except BaseException:
+            f.close()
+            raise
+
+    def __call__(self, chunk: Chunk) -> None:
+        """Append ``chunk`` as one record.
+
+        Raises:
+            ValueError: the chunk is longer than 1 MiB or its time is not a u64.
+            OSError: the write failed (disk full, card removed); the file keeps every
+                earlier record and at most one torn one.
+        """
+        f = self._file
+        if f is None:
+            raise ValueError(f"{self.path}: recorder is closed")
+        data = chunk.data
+        if len(data) > MAX_RECORD_BYTES:
+            raise ValueError(f"chunk of {len(data)} bytes; at most {MAX_RECORD_BYTES}")
+        if not 0 <= chunk.t_mono_ns <= _U64_MAX:
+            raise ValueError(f"t_mono_ns {chunk.t_mono_ns} does not fit in a u64")
+        head = struct.pack("<QI", chunk.t_mono_ns, len(data))
+        record = head + _CRC.pack(zlib.crc32(data, zlib.crc32(head))) + data
+        view = memoryview(record)
+        while view:  # a regular file takes it all at once unless the disk fills up
+            written = f.write(view)
+            if not written:
+                raise OSError(f"{self.path}: write accepted no bytes")
+            view = view[written:]
+        self.records += 1
+        self.bytes += len(data)
+        now = time.monotonic()
+        if now - self._last_sync >= self.fsync_interval_s:
+            os.fsync(f.fileno())
+            self._last_sync = now
+
+    def close(self) -> None:
+        """fsync and close; safe to call twice."""
+        f, self._file = self._file, None
+        if f is not None:
+            try:
+                os.fsync(f.fileno())
+            finally:
+                f.close()
+
+    def __enter__(self) -> Recorder:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+
+class Replay:
+    """Reads a recording back as ``Chunk``s with their recorded ``t_mono_ns``.
+
+    ``for chunk in Replay(path)`` yields every good record once, in file order, and
+    stops quietly before a torn or corrupt record (``torn_records`` becomes 1 and
+    ``trailing_bytes`` says how much was skipped). A power cut can only tear the last
+    record; a bad record earlier means the file was damaged, and the rest of it is lost
+    because the lengths after it cannot be trusted.
+
+    Raises:
+        RecordFormatError: (from the constructor) the header is missing, corrupt, or
+            of another format version.
+        OSError: the file cannot be opened.
+    """
+
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        self.path = Path(path)
+        self.records = 0
+        self.bytes = 0
+        self._file: io.BufferedReader | None = open(self.path, "rb")
+        try:
+            self.header = _read_header(self._file, self.path)
+        except BaseException:
+            self.close()
+            raise
+        self._state = _ScanState(good_end=self._file.tell())
+
+    @property
+    def torn_records(self) -> int:
+        """1 when reading stopped before a torn or corrupt record, else 0."""
+        return self._state.torn_records
+
+    @property
+    def trailing_bytes(self) -> int:
+        """Bytes after the last good record that could not be read."""
+        return self._state.trailing_bytes
+
+    def __iter__(self) -> Iterator[Chunk]:
+        f = self._file
+        if f is None:
+            return
+        for chunk in _records(f, self._state):
+            self.records += 1
+            self.bytes += len(chunk.data)
+            yield chunk
+        if self._state.torn_records:
+            log.info(
+                "%s: stopped before a torn or corrupt record at byte %d (%d bytes skipped)",
+                self.path,
+                self._state.good_end,
+                self._state.trailing_bytes,
+            )
+
+    def close(self) -> None:
+        """Close the file; safe to call twice."""
+        f, self._file = self._file, None
+        if f is not None:
+            f.close()
+
+    def __enter__(self) -> Replay:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+
+def check_speed(speed: float | None) -> float | None:
+    """``speed`` if it is a usable replay speed (finite, > 0) or None (as fast as possible).
+
+    Raises:
+        ValueError: zero, negative, infinite or NaN.
+    """
+    if speed is not None and not (math.isfinite(speed) and speed > 0):
+        raise ValueError(f"replay speed must be a positive number or None (max), got {speed}")
+    return speed
+
+
+class Pacer:
+    """Turns recorded times into the monotonic clock times at which to release them.
+
+    The first chunk is due at the first ``due`` call; each later one is due after the
+    recorded gap since the previous chunk, divided by ``speed``. Gaps longer than
+    ``max_gap_s`` (recording time) are shortened to it, and a backward step (a recording
+    appended after a reboot) counts as no gap. Due times are absolute, so time the
+    consumer spends on a chunk does not add up into drift.
+
+    Args:
+        speed: replay rate relative to real time (2.0 = twice as fast); must be > 0.
+        max_gap_s: longest recorded gap kept, in seconds; None keeps every gap.
+        clock: seconds on a monotonic clock (injectable for tests).
+    """
+
+    def __init__(
+        self,
+        speed: float,
+        max_gap_s: float | None = 1.0,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        if check_speed(speed) is None:
+            raise ValueError("Pacer needs a speed; use no pacing for as-fast-as-possible")
+        if max_gap_s is not None and max_gap_s < 0:
+            raise ValueError(f"max_gap_s must be >= 0, got {max_gap_s}")
+        self.speed = speed
+        self._max_gap_ns = None if max_gap_s is None else round(max_gap_s * 1e9)
+        self._clock = clock
+        self._start_s: float | None = None
+        self._prev_ns = 0
+        self._offset_ns = 0
+
+    def due(self, t_mono_ns: int) -> float:
+        """Clock time (seconds) when the chunk recorded at ``t_mono_ns`` should go out.
+
+        Call once per chunk, in recording order.
+        """
+        if self._start_s is None:
+            self._start_s = self._clock()
+        else:
+            gap_ns = max(0, t_mono_ns - self._prev_ns)
+            if self._max_gap_ns is not None:
+                gap_ns = min(gap_ns, self._max_gap_ns)
+            self._offset_ns += gap_ns
+        self._prev_ns = t_mono_ns
+        return self._start_s + self._offset_ns / 1e9 / self.speed
+
+
+def paced(
+    chunks: Iterable[Chunk],
+    speed: float | None = 1.0,
+    max_gap_s: float | None = 1.0,
+    *,
+    stop: threading.Event | None = None,
+    clock: Callable[[], float] = time.monotonic,
+    sleep: Callable[[float], object] | None = None,
+) -> Iterator[Chunk]:
+    """Yield ``chunks`` at ``speed`` times the pace they were recorded at.
+
+    Chunks keep their recorded ``t_mono_ns``; only when they are released changes.
+
+    Args:
+        chunks: usually a ``Replay``.
+        speed: 1.0 real time, 2.0 twice as fast; None as fast as possible.
+        max_gap_s: recorded gaps longer than this many seconds are shortened to it, so
+            a pause in the recording does not stall the replay; None keeps them.
+        stop: when set, the generator ends at once, even in the middle of a wait.
+        clock: monotonic seconds; tests inject a fake one together with ``sleep``.
+        sleep: waits the given seconds; defaults to ``stop.wait`` (so ``stop`` cuts it
+            short) or ``time.sleep`` without ``stop``.
+
+    Raises:
+        ValueError: ``speed`` is zero, negative or not finite, or ``max_gap_s`` < 0.
+    """
+    check_speed(speed)
+    pacer = None if speed is None else Pacer(speed, max_gap_s, clock)
+    if sleep is None:
+        sleep = stop.wait if stop is not None else time.sleep
+    for chunk in chunks:
+        if stop is not None and stop.is_set():
+            return
+        if pacer is not None:
+            delay_s = pacer.due(chunk.t_mono_ns) - clock()
+            if delay_s > 0:
+                sleep(delay_s)
+                if stop is not None and stop.is_set():
+                    return
+        yield chunk

@@ -1,0 +1,159 @@
+"""A recording played back as a Source, so ``lunad serve --replay FILE`` runs the live path.
+
+How this works: the source keeps one chunk of look-ahead from a ``Replay``. ``read``
+waits (at most ``timeout_s``) until the ``Pacer`` says that chunk is due, then returns
+it with the ``t_mono_ns`` it was recorded with. ``Source.read`` would stamp the time of
+the replay read instead, so this class overrides ``read`` itself: the parser and filter
+then see the live run's times, and publish the same readings (time-dependent filter
+steps included) whatever the replay speed.
+
+``cancel`` writes a byte to a self-pipe that the wait selects on: it is called from the
+daemon's signal handler, where taking a ``threading.Event``'s lock could deadlock with a
+wait the handler interrupted.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import select
+import time
+from pathlib import Path
+from typing import Protocol
+
+from lunad.daemon.errors import SourceOpenError
+from lunad.daemon.record import Pacer, Replay, check_speed
+from lunad.daemon.source import Chunk, Source
+
+log = logging.getLogger(__name__)
+
+MAX_GAP_S = 1.0  # recorded silences longer than this replay as this long (seconds)
+
+
+class ReplayConfig(Protocol):
+    """The config fields this backend reads (``[source]`` with ``kind = "replay"``)."""
+
+    @property
+    def path(self) -> str | os.PathLike[str]: ...
+
+    @property
+    def speed(self) -> float | None: ...
+
+
+class ReplaySource(Source):
+    """Chunks from a recording, paced at ``speed`` times real time.
+
+    Args:
+        path: a recording made by ``lunad record`` (``Recorder``).
+        speed: 1.0 real time, 2.0 twice as fast, None as fast as the reader takes them.
+        max_gap_s: recorded gaps longer than this (seconds) are shortened to it.
+
+    Raises:
+        SourceOpenError: the file cannot be opened.
+        RecordFormatError: the file is not a recording this version reads.
+        ValueError: ``speed`` is zero, negative or not finite.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        speed: float | None = 1.0,
+        max_gap_s: float | None = MAX_GAP_S,
+    ) -> None:
+        self.path = Path(path)
+        self.speed = check_speed(speed)
+        self.ignored_writes = 0
+        self._pacer = None if speed is None else Pacer(speed, max_gap_s)
+        try:
+            self._replay = Replay(self.path)
+        except OSError as exc:
+            raise SourceOpenError(f"cannot open recording {self.path}: {exc}") from exc
+        self._chunks = iter(self._replay)
+        self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
+        self._closed = False
+        self._next: Chunk | None = next(self._chunks, None)
+        self._due_s: float | None = None
+
+    @classmethod
+    def from_config(cls, cfg: ReplayConfig) -> ReplaySource:
+        """Open the recording ``cfg.path`` at ``cfg.speed`` (None: as fast as possible)."""
+        return cls(cfg.path, cfg.speed)
+
+    @property
+    def exhausted(self) -> bool:
+        """True once the last chunk has been returned; ``read`` then returns None at once."""
+        return self._next is None
+
+    @property
+    def torn_records(self) -> int:
+        """1 when the recording ended in a torn or corrupt record (skipped), else 0."""
+        return self._replay.torn_records
+
+    def read(self, timeout_s: float | None) -> Chunk | None:
+        """The next recorded chunk once it is due, with its recorded ``t_mono_ns``.
+
+        Returns None when it is not due within ``timeout_s`` seconds, when ``cancel``
+        woke the wait, after ``close``, and at once when the recording is exhausted.
+        """
+        chunk = self._next
+        if chunk is None or self._closed:
+            return None
+        if self._pacer is not None:
+            if self._due_s is None:  # the clock starts at the first read, not at open
+                self._due_s = self._pacer.due(chunk.t_mono_ns)
+            wait_s = self._due_s - time.monotonic()
+            if wait_s > 0:
+                if timeout_s is not None and timeout_s < wait_s:
+                    self._wait(timeout_s)
+                    return None
+                if self._wait(wait_s):
+                    return None
+        elif self._wait(0.0):
+            return None
+        self._next = next(self._chunks, None)
+        self._due_s = None
+        return chunk
+
+    def _wait(self, timeout_s: float) -> bool:
+        """Sleep up to ``timeout_s`` seconds; True (and the wake-up consumed) if cancelled."""
+        ready, _, _ = select.select([self._wake_r], [], [], timeout_s)
+        if not ready:
+            return False
+        try:
+            while os.read(self._wake_r, 512):
+                pass
+        except BlockingIOError:
+            pass
+        return True
+
+    def _read(self, timeout_s: float | None) -> bytes:
+        chunk = self.read(timeout_s)
+        return b"" if chunk is None else chunk.data
+
+    def write(self, data: bytes) -> None:
+        """Drop command bytes: a recording cannot answer them (counted, logged once)."""
+        self.ignored_writes += 1
+        if self.ignored_writes == 1:
+            log.info("%s: ignoring command bytes, a recording cannot answer", self)
+
+    def cancel(self) -> None:
+        """Wake a pacing wait in ``read``; safe from a signal handler or another thread."""
+        if self._closed:
+            return
+        try:
+            os.write(self._wake_w, b"\0")
+        except (BlockingIOError, OSError):
+            pass  # pipe full (a wake-up is already pending) or closed under us
+
+    def close(self) -> None:
+        """Close the recording; safe to call twice."""
+        if self._closed:
+            return
+        self._closed = True
+        self._replay.close()
+        os.close(self._wake_r)
+        os.close(self._wake_w)
+
+    def __str__(self) -> str:
+        pace = "max speed" if self.speed is None else f"{self.speed:g}x"
+        return f"replay {self.path} at {pace}"

@@ -1,0 +1,156 @@
+"""Shared fixtures: a virtual sensor on a real pty, the daemon as a real subprocess,
+a real ZeroMQ subscriber, and a guard that fails any test leaving a pty or thread open."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from lunad.protocol.client import Subscriber
+from lunad.protocol.messages import HealthMessage, Message, RangeMessage
+from lunad.sim.pty_device import PtyDevice
+
+LUNAD = [sys.executable, "-m", "lunad.daemon.cli"]
+
+
+def _open_ptys() -> set[str]:
+    found = set()
+    for fd in os.listdir("/proc/self/fd"):
+        try:
+            target = os.readlink(f"/proc/self/fd/{fd}")
+        except OSError:
+            continue
+        if target.startswith("/dev/pts/") or target == "/dev/ptmx":
+            found.add(f"{fd}->{target}")
+    return found
+
+
+@pytest.fixture(autouse=True)
+def no_leaks() -> Iterator[None]:
+    """Fail a test that leaves a pty fd or a non-daemon thread (or a device thread) behind."""
+    ptys = _open_ptys()
+    threads = set(threading.enumerate())
+    yield
+    deadline = time.monotonic() + 2.0
+    while time.monotonic() < deadline:
+        extra_threads = [
+            t
+            for t in threading.enumerate()
+            if t not in threads and t.is_alive() and (not t.daemon or t.name == "pty-device")
+        ]
+        extra_ptys = _open_ptys() - ptys
+        if not extra_threads and not extra_ptys:
+            return
+        time.sleep(0.05)
+    pytest.fail(f"test leaked threads {extra_threads} or ptys {extra_ptys}")
+
+
+class DaemonProc:
+    """``lunad serve`` as a real subprocess, with its stderr kept for assertions."""
+
+    def __init__(self, args: list[str], tmp: Path, env: dict[str, str] | None = None) -> None:
+        self.log_path = tmp / f"daemon-{time.monotonic_ns()}.log"
+        self._log = open(self.log_path, "wb")
+        self.proc = subprocess.Popen(
+            [*LUNAD, "serve", *args],
+            stdout=self._log,
+            stderr=subprocess.STDOUT,
+            env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})},
+        )
+
+    @property
+    def log(self) -> str:
+        return self.log_path.read_text(errors="replace")
+
+    def stop(self, sig: int = signal.SIGTERM, timeout: float = 5.0) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+        try:
+            code = self.proc.wait(timeout=timeout)
+        finally:
+            if self.proc.poll() is None:
+                self.proc.kill()
+                self.proc.wait()
+            self._log.close()
+        return code
+
+
+@pytest.fixture
+def endpoint(tmp_path: Path) -> str:
+    return f"ipc://{tmp_path}/lunad.sock"
+
+
+@pytest.fixture
+def start_daemon(tmp_path: Path) -> Iterator[Callable[..., DaemonProc]]:
+    procs: list[DaemonProc] = []
+
+    def start(*args: str, env: dict[str, str] | None = None) -> DaemonProc:
+        d = DaemonProc(list(args), tmp_path, env)
+        procs.append(d)
+        return d
+
+    yield start
+    for d in procs:
+        d.stop(signal.SIGKILL)
+
+
+@pytest.fixture
+def device(tmp_path: Path) -> Callable[..., PtyDevice]:
+    """Factory for a started virtual sensor behind ``tmp_path/tfluna``; closed after the test."""
+    made: list[PtyDevice] = []
+
+    def make(**kw: Any) -> PtyDevice:
+        kw.setdefault("link", tmp_path / "tfluna")
+        dev = PtyDevice(**kw).start()
+        made.append(dev)
+        return dev
+
+    yield make  # type: ignore[misc]
+    for dev in made:
+        dev.close()
+
+
+@pytest.fixture
+def subscriber(endpoint: str) -> Iterator[Subscriber]:
+    with Subscriber(endpoint) as sub:
+        yield sub
+
+
+def wait_for(sub: Subscriber, pred: Callable[[Message], bool], timeout: float = 5.0) -> Message:
+    """The first message matching ``pred`` within ``timeout`` seconds, else fail."""
+    deadline = time.monotonic() + timeout
+    while (left := deadline - time.monotonic()) > 0:
+        msg = sub.recv(timeout_s=left)
+        if msg is not None and pred(msg):
+            return msg
+    pytest.fail(f"no matching message within {timeout} s")
+
+
+def is_range(msg: Message) -> bool:
+    return isinstance(msg, RangeMessage)
+
+
+def health_state(state: str) -> Callable[[Message], bool]:
+    return lambda m: isinstance(m, HealthMessage) and m.state == state
+
+
+@pytest.fixture
+def helpers() -> Any:
+    """Small helpers for tests (conftest modules are not importable by name)."""
+
+    class H:
+        wait_for = staticmethod(wait_for)
+        is_range = staticmethod(is_range)
+        health_state = staticmethod(health_state)
+        lunad = LUNAD
+
+    return H

@@ -1,0 +1,128 @@
+"""The per-frame pipeline the daemon calls (filters/range_filter.py)."""
+
+from __future__ import annotations
+
+import random
+
+import pytest
+
+from lunad.filters import Estimate, FilterConfig, RangeFilter, Reason, Status, Zone
+
+CFG = FilterConfig()
+FRAME_NS = 4_000_000  # 250 Hz
+
+
+def sigma_of(amp: int, lux: float = 0.0) -> float:
+    return (CFG.sigma0_m + CFG.k_m_per_lux * lux) * CFG.amp_ref / amp
+
+
+def feed(flt: RangeFilter, zs: list[float | None], amp: int, k0: int = 0) -> list[Estimate]:
+    return [flt.step(z, amp, (k0 + k) * FRAME_NS) for k, z in enumerate(zs)]
+
+
+def noisy(rng: random.Random, truth: float, amp: int, n: int, lux: float = 0.0) -> list[float]:
+    s = sigma_of(amp, lux)
+    return [round((truth + rng.gauss(0, s)) * 100) / 100 for _ in range(n)]
+
+
+def test_weak_reading_is_a_dropout_with_no_range() -> None:
+    est = RangeFilter().step(None, 40, 0)
+    assert est.status is Status.DROPOUT
+    assert est.range_m is None and est.sigma_m is None
+    assert est.reasons == (Reason.WEAK_SIGNAL,)
+    assert est.zone is Zone.UNRELIABLE
+    assert est.strength == pytest.approx(40 / CFG.amp_ref)
+
+
+def test_good_readings_give_plain_float_estimates() -> None:
+    flt = RangeFilter()
+    out = feed(flt, noisy(random.Random(0), 2.0, 1800, 300), 1800)
+    last = out[-1]
+    assert last.status is Status.OK and last.reasons == ()
+    assert type(last.range_m) is float and type(last.sigma_m) is float
+    assert last.range_m == pytest.approx(2.0, abs=0.01)
+    assert last.zone is Zone.STABLE
+    assert last.lux_est is not None and last.lux_est < 10_000
+
+
+def test_isolated_spike_is_degraded_outlier_showing_the_prediction() -> None:
+    flt = RangeFilter()
+    feed(flt, noisy(random.Random(1), 2.0, 1800, 200), 1800)
+    est = flt.step(3.2, 1800, 200 * FRAME_NS)
+    assert est.status is Status.DEGRADED
+    assert est.reasons == (Reason.OUTLIER,)
+    assert est.range_m == pytest.approx(2.0, abs=0.01)
+    assert flt.step(2.0, 1800, 201 * FRAME_NS).status is Status.OK
+
+
+def test_real_step_is_followed_within_two_frames() -> None:
+    flt = RangeFilter()
+    rng = random.Random(2)
+    feed(flt, noisy(rng, 4.0, 500, 300), 500)
+    after = feed(flt, noisy(rng, 1.2, 2500, 5), 2500, k0=300)
+    assert abs(after[1].range_m - 1.2) < 0.05
+    assert all(abs(e.range_m - 1.2) < 0.05 for e in after[1:])
+
+
+def test_stale_after_no_accepted_reading() -> None:
+    flt = RangeFilter(FilterConfig(stale_after_s=0.1))
+    feed(flt, [2.0] * 10, 1800)
+    early = flt.step(None, 50, 20 * FRAME_NS)
+    assert Reason.STALE not in early.reasons
+    late = flt.step(None, 50, 60 * FRAME_NS)
+    assert late.reasons == (Reason.WEAK_SIGNAL, Reason.STALE)
+    back = flt.step(3.0, 1800, 61 * FRAME_NS)
+    assert back.status is Status.OK and back.range_m == pytest.approx(3.0)
+
+
+def test_estimate_beyond_the_range_is_not_published() -> None:
+    flt = RangeFilter()
+    rng = random.Random(3)
+    zs = [7.99 if z <= 8.0 else z for z in noisy(rng, 8.1, 1800, 200)]
+    out = feed(flt, zs, 1800)
+    assert all(e.range_m is None or e.range_m <= 8.0 for e in out)
+    assert out[-1].reasons == (Reason.OUT_OF_RANGE,)
+
+
+def test_high_lux_is_degraded_high_ambient() -> None:
+    flt = RangeFilter()
+    out = feed(flt, noisy(random.Random(4), 1.5, 600, 500, lux=40_000.0), 600)
+    assert out[-1].status is Status.DEGRADED
+    assert Reason.HIGH_AMBIENT in out[-1].reasons
+    assert out[-1].lux_est == pytest.approx(40_000, rel=0.35)
+
+
+@pytest.mark.parametrize(("amp", "lux"), [(1800, 0.0), (300, 2_000.0), (700, 30_000.0)])
+def test_sigma_is_honest_on_a_static_target(amp: int, lux: float) -> None:
+    inside = total = 0
+    for seed in range(4):
+        flt = RangeFilter()
+        out = feed(flt, noisy(random.Random(10 + seed), 2.345, amp, 1000, lux), amp)
+        for e in out[125:]:
+            if e.range_m is not None:
+                total += 1
+                inside += abs(e.range_m - 2.345) <= 2 * e.sigma_m
+    assert 0.90 <= inside / total <= 0.995
+
+
+def test_known_sigma_sets_the_measurement_noise() -> None:
+    small, large = RangeFilter(), RangeFilter()
+    for k in range(20):
+        a = small.step_known_sigma(2.0, 1800, k * FRAME_NS, 0.005)
+        b = large.step_known_sigma(2.0, 1800, k * FRAME_NS, 0.05)
+    assert a.sigma_m < b.sigma_m
+
+
+def test_reset_forgets_everything() -> None:
+    zs = noisy(random.Random(5), 2.0, 900, 100)
+    flt = RangeFilter()
+    first = feed(flt, zs, 900)
+    flt.reset()
+    assert feed(flt, zs, 900) == first
+
+
+def test_config_rejects_nonsense_naming_the_field() -> None:
+    with pytest.raises(ValueError, match="sigma0_m"):
+        FilterConfig(sigma0_m=0.0)
+    with pytest.raises(ValueError, match="min_range_m"):
+        FilterConfig(min_range_m=9.0)

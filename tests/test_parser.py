@@ -1,0 +1,171 @@
+"""The streaming frame parser: exact frames in any chunking, counters that add up, no raise."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from lunad.protocol import CommandReply, Frame, FrameParser, OutputFormat, encode_frame
+from lunad.protocol.commands import encode_reply
+
+HEADER_BYTES = {0x59, 0x5A}
+
+
+def feed_chunks(data: bytes, cuts: Sequence[int]) -> tuple[list[Frame | CommandReply], FrameParser]:
+    p = FrameParser()
+    out: list[Frame | CommandReply] = []
+    pos = 0
+    for i, cut in enumerate(sorted(set(c % (len(data) + 1) for c in cuts))):
+        out += p.feed(data[pos:cut], i)
+        pos = cut
+    out += p.feed(data[pos:], 10**9)
+    return out, p
+
+
+def three_ways(data: bytes) -> list[list[tuple[int, int, int]]]:
+    """Feed whole, byte by byte, and with trailing junk that must stay buffered."""
+    results = []
+    whole = FrameParser().feed(data, 0)
+    results.append(whole)
+    p = FrameParser()
+    results.append([x for b in data for x in p.feed(bytes((b,)), 0)])
+    p = FrameParser()
+    tail = encode_frame(1, 2, 3)[:5]
+    results.append(p.feed(data + tail, 0))
+    assert p.stats.buffered == len(tail)
+    return [[(f.dist, f.amp, f.temp_raw) for f in r if isinstance(f, Frame)] for r in results]
+
+
+def test_known_frame_three_ways() -> None:
+    data = bytes.fromhex("59 59 7B 00 E8 03 40 09 61")  # TFLUNA.md 1.5
+    for frames in three_ways(data):
+        assert frames == [(123, 1000, 0x0940)]
+    f = FrameParser().feed(data, 7)[0]
+    assert isinstance(f, Frame)
+    assert f.distance_m == 1.23 and f.temp_c == 40.0 and f.t_mono_ns == 7
+
+
+def test_weak_and_overexposed_frames_parse_with_no_distance() -> None:
+    weak = bytes.fromhex("59 59 00 00 39 00 40 09 34")
+    over = bytes.fromhex("59 59 00 00 FF FF 40 09 F9")
+    frames = FrameParser().feed(weak + over, 0)
+    assert [(f.amp, f.distance_m) for f in frames] == [(57, None), (0xFFFF, None)]  # type: ignore[union-attr]
+
+
+def test_mm_format() -> None:
+    p = FrameParser(OutputFormat.MM)
+    (f,) = p.feed(encode_frame(1234, 500, 0), 0)
+    assert isinstance(f, Frame) and f.distance_m == 1.234
+
+
+def test_format_echo_switches_unit() -> None:
+    p = FrameParser()
+    out = p.feed(encode_reply(0x05, b"\x06") + encode_frame(1500, 900, 0), 0)
+    assert isinstance(out[0], CommandReply)
+    assert isinstance(out[1], Frame) and out[1].distance_m == 1.5
+
+
+def test_bad_checksum_rescans_from_next_byte() -> None:
+    """A frame whose checksum is wrong costs only itself, even when a good one starts inside it."""
+    good = encode_frame(200, 1000, 2368)
+    # a bad candidate made of a stray 0x59 in front of a good frame: 59 59 59 ...
+    data = b"\x59" + good + bytes((0x59, 0x59, 1, 2, 3, 4, 5, 6, 0)) + good
+    p = FrameParser()
+    frames = [f for f in p.feed(data, 0) if isinstance(f, Frame)]
+    assert len(frames) == 2
+    assert p.stats.checksum_errors == 2
+    assert p.stats.bytes_discarded == 10
+
+
+def test_cut_frame_then_good_frame() -> None:
+    good = encode_frame(321, 4000, 2400)
+    data = encode_frame(100, 100, 100)[:5] + good
+    frames = [f for f in FrameParser().feed(data, 0) if isinstance(f, Frame)]
+    assert [(f.dist, f.amp) for f in frames] == [(321, 4000)]
+
+
+def test_buffer_is_bounded_by_one_partial_frame() -> None:
+    p = FrameParser()
+    p.feed(b"\x5a\x1e\x14" + b"A" * 20, 0)  # the start of a 30-byte full-version reply
+    assert p.stats.buffered == 23
+    p.feed(bytes(range(256)) * 40, 0)
+    assert p.stats.buffered < 30
+
+
+valid_frames = st.builds(
+    encode_frame,
+    st.integers(0, 0xFFFF),
+    st.integers(0, 0xFFFF),
+    st.integers(0, 0xFFFF),
+)
+plain_byte = st.integers(0, 255).filter(lambda b: b not in HEADER_BYTES)
+garbage = st.lists(plain_byte, min_size=1, max_size=20).map(bytes)
+
+
+@st.composite
+def corrupted_frames(draw: st.DrawFn) -> bytes:
+    body = b"\x59\x59" + bytes(draw(st.lists(plain_byte, min_size=6, max_size=6)))
+    good_cs = sum(body) & 0xFF
+    bad = draw(plain_byte.filter(lambda b: b != good_cs))
+    return body + bytes((bad,))
+
+
+replies = st.sampled_from(
+    [
+        encode_reply(0x01, bytes((9, 0, 3))),
+        encode_reply(0x03, (100).to_bytes(2, "little")),
+        encode_reply(0x07, b"\x01"),
+        encode_reply(0x11, b"\x00"),
+    ]
+)
+piece = st.one_of(
+    valid_frames.map(lambda b: ("frame", b)),
+    garbage.map(lambda b: ("garbage", b)),
+    corrupted_frames().map(lambda b: ("corrupt", b)),
+    replies.map(lambda b: ("reply", b)),
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(piece, max_size=40), st.lists(st.integers(0, 10_000), max_size=30))
+def test_any_interleaving_yields_exactly_the_valid_frames(
+    pieces: list[tuple[str, bytes]], cuts: list[int]
+) -> None:
+    data = b"".join(b for _, b in pieces)
+    out, p = feed_chunks(data, cuts)
+    expected = [b for kind, b in pieces if kind in ("frame", "reply")]
+    got = [
+        encode_frame(x.dist, x.amp, x.temp_raw)
+        if isinstance(x, Frame)
+        else encode_reply(x.cmd_id, x.payload)
+        for x in out
+    ]
+    assert got == expected
+    s = p.stats
+    n_corrupt = sum(kind == "corrupt" for kind, _ in pieces)
+    assert s.frames == sum(kind == "frame" for kind, _ in pieces)
+    assert s.replies == sum(kind == "reply" for kind, _ in pieces)
+    assert s.checksum_errors == n_corrupt
+    assert s.bytes_discarded == sum(len(b) for kind, b in pieces if kind in ("garbage", "corrupt"))
+    assert s.buffered == 0
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=600), st.lists(st.integers(0, 10_000), max_size=40))
+def test_arbitrary_bytes_never_raise_and_counters_add_up(data: bytes, cuts: list[int]) -> None:
+    out, p = feed_chunks(data, cuts)
+    s = p.stats
+    assert s.bytes_fed == len(data)
+    assert s.bytes_fed == 9 * s.frames + s.reply_bytes + s.bytes_discarded + s.buffered
+    assert s.frames == sum(isinstance(x, Frame) for x in out)
+    assert s.buffered < 30
+    whole = FrameParser().feed(data, 0)
+    assert [_key(x) for x in out] == [_key(x) for x in whole]  # chunking changes nothing
+
+
+def _key(x: Frame | CommandReply) -> tuple[object, ...]:
+    if isinstance(x, Frame):
+        return ("f", x.dist, x.amp, x.temp_raw)
+    return ("r", x.cmd_id, x.payload)

@@ -1,0 +1,417 @@
+"""Recording format, torn-tail recovery, pacing, and the replay source."""
+
+from __future__ import annotations
+
+import os
+import struct
+import tempfile
+import threading
+import time
+from collections.abc import Iterable
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from lunad.daemon.errors import LunadError, SourceOpenError
+from lunad.daemon.record import (
+    MAGIC,
+    Pacer,
+    Recorder,
+    RecordFormatError,
+    Replay,
+    paced,
+)
+from lunad.daemon.replay_source import ReplaySource
+from lunad.daemon.source import Chunk
+from lunad.protocol import FrameParser, encode_frame
+
+RECORD_OVERHEAD = 16  # t_mono_ns u64 + length u32 + crc32 u32
+MS = 1_000_000  # nanoseconds
+
+CHUNKS = [
+    Chunk(b"\x59\x59\x10\x00", 1_000 * MS),
+    Chunk(b"", 1_010 * MS),
+    Chunk(bytes(range(256)), 1_020 * MS),
+]
+
+
+def record(path: Path, chunks: Iterable[Chunk], desc: str = "test") -> None:
+    with Recorder(path, desc) as rec:
+        for chunk in chunks:
+            rec(chunk)
+
+
+def read_all(path: Path) -> tuple[list[Chunk], int]:
+    with Replay(path) as rep:
+        return list(rep), rep.torn_records
+
+
+# --- format round trip --------------------------------------------------------------
+
+
+def test_round_trip_and_header(tmp_path: Path) -> None:
+    path = tmp_path / "a.lunarec"
+    before_ns = time.time_ns()
+    with Recorder(path, "serial /dev/ttyAMA0 115200 Bd") as rec:
+        for chunk in CHUNKS:
+            rec(chunk)
+        assert rec.records == 3
+        assert rec.bytes == 4 + 0 + 256
+    assert path.read_bytes().startswith(MAGIC)
+    with Replay(path) as rep:
+        assert rep.header.version == 1
+        assert rep.header.source_desc == "serial /dev/ttyAMA0 115200 Bd"
+        assert before_ns <= rep.header.created_unix_ns <= time.time_ns()
+        assert list(rep) == CHUNKS
+        assert rep.records == 3
+        assert rep.torn_records == 0
+        assert rep.trailing_bytes == 0
+
+
+chunk_lists = st.lists(
+    st.builds(Chunk, st.binary(max_size=64), st.integers(min_value=0, max_value=2**64 - 1)),
+    max_size=20,
+)
+
+
+@given(chunks=chunk_lists, desc=st.text(max_size=40))
+@settings(max_examples=60, deadline=None)
+def test_any_chunks_round_trip(chunks: list[Chunk], desc: str) -> None:
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "h.lunarec"
+        record(path, chunks, desc)
+        with Replay(path) as rep:
+            assert list(rep) == chunks
+            assert rep.header.source_desc == desc
+            assert rep.torn_records == 0
+
+
+def test_recorder_rejects_misuse(tmp_path: Path) -> None:
+    with Recorder(tmp_path / "m.lunarec") as rec:
+        with pytest.raises(ValueError, match="u64"):
+            rec(Chunk(b"x", -1))
+        with pytest.raises(ValueError, match="at most"):
+            rec(Chunk(bytes((1 << 20) + 1), 0))
+    with pytest.raises(ValueError, match="closed"):
+        rec(Chunk(b"x", 0))
+    with pytest.raises(ValueError, match="source_desc"):
+        Recorder(tmp_path / "n.lunarec", "x" * 2000)
+
+
+# --- power cuts and corruption ------------------------------------------------------
+
+
+def test_cut_anywhere_in_last_record_keeps_earlier_ones(tmp_path: Path) -> None:
+    """A cut at every byte offset of the last record: earlier records read, never raises;
+    appending afterwards drops the torn tail and continues after the last good record."""
+    whole = tmp_path / "whole.lunarec"
+    record(whole, CHUNKS)
+    data = whole.read_bytes()
+    last_start = len(data) - RECORD_OVERHEAD - len(CHUNKS[-1].data)
+    extra = Chunk(b"after the cut", 2_000 * MS)
+    for cut in range(last_start, len(data)):
+        path = tmp_path / f"cut{cut}.lunarec"
+        path.write_bytes(data[:cut])
+        chunks, torn = read_all(path)
+        assert chunks == CHUNKS[:-1], cut
+        assert torn == (1 if cut > last_start else 0), cut
+        with Recorder(path) as rec:
+            assert rec.truncated_bytes == cut - last_start
+            rec(extra)
+        assert read_all(path) == ([*CHUNKS[:-1], extra], 0), cut
+
+
+@pytest.mark.parametrize("offset_from_end", [1, 256, 256 + 4, 256 + 8, 256 + 16])
+def test_corrupt_last_record_is_skipped(tmp_path: Path, offset_from_end: int) -> None:
+    """A flipped bit in the data, CRC, length or time of the last record."""
+    path = tmp_path / "bad.lunarec"
+    record(path, CHUNKS)
+    data = bytearray(path.read_bytes())
+    data[-offset_from_end] ^= 0x01
+    path.write_bytes(bytes(data))
+    chunks, torn = read_all(path)
+    assert chunks == CHUNKS[:-1]
+    assert torn == 1
+
+
+def test_garbage_length_does_not_swallow_memory(tmp_path: Path) -> None:
+    path = tmp_path / "len.lunarec"
+    record(path, CHUNKS[:1])
+    with open(path, "ab") as f:
+        f.write(struct.pack("<QII", 5, 0xFFFF_FFFF, 0) + b"junk")
+    with Replay(path) as rep:
+        assert list(rep) == CHUNKS[:1]
+        assert rep.torn_records == 1
+        assert rep.trailing_bytes == RECORD_OVERHEAD + 4
+
+
+@pytest.mark.parametrize(
+    ("content", "match"),
+    [
+        (b"\x59\x59\x10\x00" * 20, "not a lunad recording"),
+        (b"", "empty"),
+        (MAGIC + b"\x01", "cut short"),
+    ],
+)
+def test_bad_header_is_a_clear_error(tmp_path: Path, content: bytes, match: str) -> None:
+    path = tmp_path / "other.bin"
+    path.write_bytes(content)
+    with pytest.raises(RecordFormatError, match=match) as info:
+        Replay(path)
+    assert str(path) in str(info.value)
+    assert isinstance(info.value, LunadError)
+    assert isinstance(info.value, ValueError)
+
+
+def test_newer_version_and_corrupt_header(tmp_path: Path) -> None:
+    path = tmp_path / "v.lunarec"
+    record(path, CHUNKS)
+    good = path.read_bytes()
+    path.write_bytes(good[:8] + struct.pack("<H", 2) + good[10:])
+    with pytest.raises(RecordFormatError, match="version 2"):
+        Replay(path)
+    path.write_bytes(good[:30] + b"T" + good[31:])  # first description byte
+    with pytest.raises(RecordFormatError, match="checksum"):
+        Replay(path)
+
+
+def test_recorder_refuses_to_append_to_a_foreign_file(tmp_path: Path) -> None:
+    path = tmp_path / "notes.txt"
+    path.write_bytes(b"my notes, not a recording\n")
+    with pytest.raises(RecordFormatError, match="not a lunad recording"):
+        Recorder(path)
+    assert path.read_bytes() == b"my notes, not a recording\n"
+
+
+@pytest.mark.parametrize("keep", [0, 5, 20, 33])
+def test_recorder_restarts_a_torn_header(tmp_path: Path, keep: int) -> None:
+    path = tmp_path / "t.lunarec"
+    record(path, [], "first")
+    path.write_bytes(path.read_bytes()[:keep])
+    record(path, CHUNKS[:1], "second")
+    with Replay(path) as rep:
+        assert rep.header.source_desc == "second"
+        assert list(rep) == CHUNKS[:1]
+
+
+def test_append_keeps_earlier_records_and_header(tmp_path: Path) -> None:
+    path = tmp_path / "app.lunarec"
+    record(path, CHUNKS[:2], "first session")
+    with Recorder(path, "second session") as rec:
+        rec(CHUNKS[2])
+        assert rec.records == 1
+        assert rec.truncated_bytes == 0
+    with Replay(path) as rep:
+        assert rep.header.source_desc == "first session"
+        assert list(rep) == CHUNKS
+
+
+def test_fsync_interval_zero_syncs_every_record(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    synced: list[int] = []
+    real_fsync = os.fsync
+    monkeypatch.setattr(os, "fsync", lambda fd: (synced.append(fd), real_fsync(fd)))
+    with Recorder(tmp_path / "s.lunarec", fsync_interval_s=0.0) as rec:
+        synced.clear()
+        rec(CHUNKS[0])
+        rec(CHUNKS[1])
+        assert len(synced) == 2
+    assert len(synced) == 3  # and once on close
+
+
+# --- pacing --------------------------------------------------------------------------
+
+
+class FakeClock:
+    """A monotonic clock that only moves when ``sleep`` is called."""
+
+    def __init__(self) -> None:
+        self.now = 100.0
+        self.sleeps: list[float] = []
+
+    def __call__(self) -> float:
+        return self.now
+
+    def sleep(self, seconds: float) -> None:
+        self.sleeps.append(seconds)
+        self.now += seconds
+
+
+def chunks_at(*ms: int) -> list[Chunk]:
+    return [Chunk(bytes([i]), t * MS) for i, t in enumerate(ms)]
+
+
+def test_paced_none_never_sleeps() -> None:
+    clock = FakeClock()
+    chunks = chunks_at(0, 500, 5000)
+    assert list(paced(chunks, None, clock=clock, sleep=clock.sleep)) == chunks
+    assert clock.sleeps == []
+
+
+def test_paced_speed_two_halves_every_gap() -> None:
+    clock = FakeClock()
+    chunks = chunks_at(0, 100, 300, 600)
+    out = list(paced(chunks, 2.0, clock=clock, sleep=clock.sleep))
+    assert out == chunks
+    assert clock.sleeps == pytest.approx([0.05, 0.1, 0.15])
+    assert clock.now - 100.0 == pytest.approx(0.3)
+
+
+def test_paced_shortens_long_gaps_and_ignores_backward_steps() -> None:
+    clock = FakeClock()
+    chunks = chunks_at(0, 10_000, 10_100, 50, 150)  # a pause, then a reboot
+    out = list(paced(chunks, 1.0, max_gap_s=1.0, clock=clock, sleep=clock.sleep))
+    assert out == chunks
+    assert clock.sleeps == pytest.approx([1.0, 0.1, 0.1])
+
+
+def test_paced_does_not_drift_when_the_consumer_is_slow() -> None:
+    clock = FakeClock()
+    for _chunk in paced(chunks_at(0, 100, 200, 300), 1.0, clock=clock, sleep=clock.sleep):
+        clock.now += 0.15  # the consumer takes longer than the gap
+    assert clock.sleeps == []  # always behind schedule, so never waits
+
+
+def test_paced_stops_on_event() -> None:
+    stop = threading.Event()
+    clock = FakeClock()
+
+    def sleep(seconds: float) -> None:
+        clock.sleep(seconds)
+        stop.set()
+
+    out = list(paced(chunks_at(0, 100, 200), 1.0, stop=stop, clock=clock, sleep=sleep))
+    assert out == chunks_at(0)
+    stop.clear()
+    stop.set()
+    assert list(paced(chunks_at(0, 1), None, stop=stop)) == []
+
+
+def test_paced_default_sleep_is_cut_short_by_stop() -> None:
+    stop = threading.Event()
+    timer = threading.Timer(0.05, stop.set)
+    timer.start()
+    t0 = time.monotonic()
+    out = list(paced(chunks_at(0, 60_000), 1.0, max_gap_s=None, stop=stop))
+    timer.join()
+    assert out == chunks_at(0)
+    assert time.monotonic() - t0 < 30.0  # the 60 s gap was interrupted
+
+
+@pytest.mark.parametrize("speed", [0.0, -1.0, float("inf"), float("nan")])
+def test_bad_speed_is_rejected(speed: float) -> None:
+    with pytest.raises(ValueError, match="speed"):
+        list(paced(chunks_at(0), speed))
+    with pytest.raises(ValueError, match="speed"):
+        Pacer(speed)
+
+
+# --- replay source -------------------------------------------------------------------
+
+
+@pytest.fixture
+def recording(tmp_path: Path) -> Path:
+    path = tmp_path / "rec.lunarec"
+    record(path, chunks_at(0, 10, 20), "serial loop://")
+    return path
+
+
+def test_replay_source_yields_recorded_times_and_exhausts(recording: Path) -> None:
+    with ReplaySource(recording, speed=None) as src:
+        got = [src.read(1.0) for _ in range(3)]
+        assert got == chunks_at(0, 10, 20)
+        assert src.exhausted
+        t0 = time.monotonic()
+        assert src.read(None) is None
+        assert time.monotonic() - t0 < 1.0
+        assert str(src) == f"replay {recording} at max speed"
+
+
+def test_replay_source_paces_within_timeout(tmp_path: Path) -> None:
+    path = tmp_path / "slow.lunarec"
+    record(path, chunks_at(0, 60_000))
+    with ReplaySource(path, speed=1.0, max_gap_s=None) as src:
+        assert str(src) == f"replay {path} at 1x"
+        assert src.read(0.0) == chunks_at(0)[0]
+        t0 = time.monotonic()
+        assert src.read(0.02) is None  # the next chunk is a minute away
+        assert time.monotonic() - t0 < 5.0
+        assert not src.exhausted
+
+
+def test_replay_source_cancel_wakes_a_pacing_wait(tmp_path: Path) -> None:
+    path = tmp_path / "slow.lunarec"
+    record(path, chunks_at(0, 60_000))
+    with ReplaySource(path, speed=1.0, max_gap_s=None) as src:
+        assert src.read(None) is not None
+        timer = threading.Timer(0.05, src.cancel)
+        timer.start()
+        t0 = time.monotonic()
+        assert src.read(None) is None
+        timer.join()
+        assert time.monotonic() - t0 < 30.0
+        src.cancel()  # a pending wake-up makes the next read return at once
+        assert src.read(None) is None
+
+
+def test_replay_source_fast_speed_in_order(recording: Path) -> None:
+    with ReplaySource(recording, speed=1000.0) as src:
+        got = []
+        while not src.exhausted:
+            chunk = src.read(1.0)
+            if chunk is not None:
+                got.append(chunk)
+        assert got == chunks_at(0, 10, 20)
+
+
+def test_replay_source_ignores_writes_and_closes_twice(recording: Path) -> None:
+    src = ReplaySource(recording, speed=None)
+    src.write(b"\x5a\x04\x01\x5f")
+    assert src.ignored_writes == 1
+    src.close()
+    src.close()
+    src.cancel()
+    assert src.read(0.0) is None
+
+
+def test_replay_source_from_config_and_errors(recording: Path, tmp_path: Path) -> None:
+    with ReplaySource.from_config(SimpleNamespace(path=recording, speed=2.0)) as src:
+        assert str(src).endswith("at 2x")
+    with pytest.raises(SourceOpenError, match="missing"):
+        ReplaySource(tmp_path / "missing.lunarec")
+    with pytest.raises(ValueError, match="speed"):
+        ReplaySource(recording, speed=0.0)
+
+
+def test_replay_source_reports_a_torn_tail(recording: Path) -> None:
+    recording.write_bytes(recording.read_bytes()[:-3])
+    with ReplaySource(recording, speed=None) as src:
+        got = [src.read(0.0), src.read(0.0)]
+        assert got == chunks_at(0, 10)
+        assert src.exhausted
+        assert src.torn_records == 1
+
+
+def test_replay_feeds_the_parser_exactly_as_live(tmp_path: Path) -> None:
+    """The same bytes and times, cut differently by reads, parse to identical frames."""
+    stream = b"".join(encode_frame(100 + i, 1000 + i, 2400) for i in range(50)) + b"\x59junk"
+    live = [Chunk(stream[i : i + 7], 1_000_000 + i * 7_000) for i in range(0, len(stream), 7)]
+    path = tmp_path / "live.lunarec"
+    live_parser = FrameParser()
+    live_out = []
+    with Recorder(path, "test") as rec:
+        for chunk in live:
+            rec(chunk)
+            live_out += live_parser.feed(chunk.data, chunk.t_mono_ns)
+    replay_parser = FrameParser()
+    replay_out = []
+    with ReplaySource(path, speed=None) as src:
+        while (chunk := src.read(0.0)) is not None:
+            replay_out += replay_parser.feed(chunk.data, chunk.t_mono_ns)
+    assert replay_out == live_out
+    assert len(live_out) == 50
+    assert replay_parser.stats == live_parser.stats

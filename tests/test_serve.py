@@ -1,0 +1,167 @@
+"""End to end: `lunad sim`'s device on a real pty, `lunad serve` as a real subprocess,
+a real ZeroMQ subscriber, real signals."""
+
+from __future__ import annotations
+
+import signal
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from lunad.protocol.client import Subscriber
+from lunad.protocol.messages import HealthMessage, RangeMessage
+from lunad.sim.physics import Truth
+from lunad.sim.pty_device import PtyDevice
+
+
+def collect(sub: Subscriber, seconds: float) -> list[Any]:
+    out = []
+    deadline = time.monotonic() + seconds
+    while (left := deadline - time.monotonic()) > 0:
+        msg = sub.recv(timeout_s=left)
+        if msg is not None:
+            out.append(msg)
+    return out
+
+
+def drain_ranges(sub: Subscriber, quiet_s: float = 0.5) -> list[RangeMessage]:
+    """Every range message until none came for ``quiet_s``."""
+    out = []
+    while (msg := sub.recv(timeout_s=quiet_s)) is not None:
+        if isinstance(msg, RangeMessage):
+            out.append(msg)
+    return out
+
+
+@pytest.fixture
+def running(
+    device: Callable[..., PtyDevice],
+    start_daemon: Any,
+    endpoint: str,
+    subscriber: Subscriber,
+    helpers: Any,
+) -> Callable[..., tuple[PtyDevice, Any]]:
+    def start(**dev_kw: Any) -> tuple[PtyDevice, Any]:
+        dev_kw.setdefault("output_enabled", False)  # the daemon turns output on
+        dev = device(**dev_kw)
+        d = start_daemon(
+            "--device",
+            dev.path,
+            "--publish",
+            endpoint,
+            "--name",
+            "t1",
+            "--rate",
+            str(dev_kw.get("rate_hz", 100)),
+        )
+        helpers.wait_for(subscriber, helpers.is_range, timeout=10)
+        return dev, d
+
+    return start
+
+
+def test_contract_and_seq(running: Any, subscriber: Subscriber, helpers: Any) -> None:
+    running(rate_hz=250, truth=Truth(2.0, 0.8, 10.0, 100.0))
+    msgs = collect(subscriber, 1.5)
+    ranges = [m for m in msgs if isinstance(m, RangeMessage)]
+    health = [m for m in msgs if isinstance(m, HealthMessage)]
+    assert len(ranges) > 200
+    assert [m.seq for m in ranges] == list(range(ranges[0].seq, ranges[0].seq + len(ranges)))
+    assert all(m.sensor == "t1" and m.status != "dropout" for m in ranges)
+    assert all(m.range_m is not None and abs(m.range_m - 2.0) < 0.2 for m in ranges)
+    assert health and health[-1].state == "connected" and health[-1].firmware == "3.0.9"
+    assert 200 < health[-1].fps < 300
+    assert subscriber.lost == 0 and subscriber.bad_messages == 0
+
+
+def test_dropout_reasons(running: Any, subscriber: Subscriber) -> None:
+    running(rate_hz=100, truth=Truth(2.0, 0.1, 80.0, 0.0))  # S = 0.017: amp 35
+    msgs = [m for m in collect(subscriber, 0.5) if isinstance(m, RangeMessage)]
+    assert msgs and all(m.status == "dropout" and m.range_m is None for m in msgs)
+    assert all(m.raw_m is None and "weak_signal" in m.reasons for m in msgs)
+
+
+def test_no_good_frame_lost_under_garbage(running: Any, subscriber: Subscriber) -> None:
+    dev, _ = running(rate_hz=250, garbage_rate=0.2, corrupt_rate=0.05, seed=3)
+    time.sleep(2.0)
+    dev.pause(3600)
+    ranges = drain_ranges(subscriber)
+    last_seq = ranges[-1].seq
+    assert last_seq + 1 == dev.frames_sent  # published == sent, every good frame
+    health = [m for m in collect(subscriber, 1.2) if isinstance(m, HealthMessage)]
+    assert health[-1].checksum_errors >= dev.frames_corrupted * 0.9
+    assert health[-1].bytes_discarded >= dev.garbage_bytes * 0.5
+    print(
+        f"garbage run: sent {dev.frames_sent}, published {last_seq + 1}, "
+        f"corrupted {dev.frames_corrupted}, garbage bytes {dev.garbage_bytes}"
+    )
+
+
+def test_unplug_replug_recovers(running: Any, subscriber: Subscriber, helpers: Any) -> None:
+    dev, d = running(rate_hz=100)
+    dev.unplug()
+    helpers.wait_for(subscriber, helpers.health_state("reconnecting"), timeout=3)
+    time.sleep(0.5)
+    t0 = time.monotonic()
+    dev.replug()
+    helpers.wait_for(subscriber, helpers.is_range, timeout=5)
+    recovery = time.monotonic() - t0
+    helpers.wait_for(subscriber, helpers.health_state("connected"), timeout=3)
+    print(f"recovery after replug: {recovery:.3f} s")
+    assert d.proc.poll() is None
+    assert "reconnecting" in d.log and "opened serial" in d.log
+
+
+def test_silent_sensor_reported_waiting(running: Any, subscriber: Subscriber, helpers: Any) -> None:
+    dev, _ = running(rate_hz=100)
+    dev.pause(3600)
+    drain_ranges(subscriber, quiet_s=0.05)
+    t0 = time.monotonic()
+    helpers.wait_for(subscriber, helpers.health_state("waiting"), timeout=3)
+    assert time.monotonic() - t0 < 2.0  # the contract: within two seconds
+    dev.pause(0)
+    helpers.wait_for(subscriber, helpers.is_range, timeout=3)
+
+
+def test_absent_device_then_appears(
+    tmp_path: Path, start_daemon: Any, endpoint: str, subscriber: Subscriber, helpers: Any
+) -> None:
+    link = tmp_path / "late"
+    d = start_daemon("--device", str(link), "--publish", endpoint)
+    h = helpers.wait_for(subscriber, helpers.health_state("reconnecting"), timeout=10)
+    assert str(link) in (h.last_error or "")
+    with PtyDevice(link=link, rate_hz=100, output_enabled=False):
+        helpers.wait_for(subscriber, helpers.is_range, timeout=5)
+    assert d.proc.poll() is None
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_signal_stops_within_a_second(running: Any, sig: int) -> None:
+    _, d = running(rate_hz=250)
+    t0 = time.monotonic()
+    code = d.stop(sig, timeout=5)
+    took = time.monotonic() - t0
+    assert code == 0
+    assert took < 1.0, f"stopped after {took:.2f} s"
+    assert "stopped:" in d.log and "Traceback" not in d.log
+
+
+def test_stop_while_reconnecting(
+    tmp_path: Path, start_daemon: Any, endpoint: str, subscriber: Subscriber, helpers: Any
+) -> None:
+    d = start_daemon("--device", str(tmp_path / "none"), "--publish", endpoint)
+    helpers.wait_for(subscriber, helpers.health_state("reconnecting"), timeout=10)
+    assert d.stop(signal.SIGTERM) == 0
+
+
+def test_publish_endpoint_in_use_exits_69(
+    start_daemon: Any, endpoint: str, tmp_path: Path, subscriber: Subscriber, helpers: Any
+) -> None:
+    start_daemon("--device", str(tmp_path / "a"), "--publish", "tcp://127.0.0.1:47781")
+    time.sleep(1.0)
+    d2 = start_daemon("--device", str(tmp_path / "b"), "--publish", "tcp://127.0.0.1:47781")
+    assert d2.proc.wait(timeout=10) == 69
+    assert "cannot bind" in d2.log and "Traceback" not in d2.log

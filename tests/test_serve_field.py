@@ -1,0 +1,170 @@
+"""Field-ready behaviour of `lunad serve`, end to end through the pty, real sockets and
+signals: late subscribers, low-power publishing, SIGHUP, systemd notify and watchdog."""
+
+from __future__ import annotations
+
+import itertools
+import signal
+import socket
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from lunad.protocol.client import Subscriber
+from lunad.protocol.messages import RangeMessage
+from lunad.sim.pty_device import PtyDevice
+
+
+def test_late_subscriber_gets_cached_values_at_once(
+    device: Callable[..., PtyDevice], start_daemon: Any, endpoint: str, helpers: Any
+) -> None:
+    dev = device(rate_hz=100, output_enabled=False)
+    start_daemon("--device", dev.path, "--publish", endpoint, "--name", "lv")
+    with Subscriber(endpoint) as first:
+        last = helpers.wait_for(first, helpers.is_range, timeout=10).seq
+        dev.pause(3600)
+        while (m := first.recv(timeout_s=0.3)) is not None:
+            last = m.seq if isinstance(m, RangeMessage) else last
+        assert last is not None
+        t0 = time.monotonic()
+        with Subscriber(endpoint) as late:
+            got: dict[str, Any] = {}
+            while len(got) < 2 and time.monotonic() - t0 < 2.0:
+                m = late.recv(timeout_s=0.05)
+                if m is not None:
+                    got.setdefault(m.kind, (m, time.monotonic() - t0))
+        rng, t_rng = got["range"]
+        _, t_health = got["health"]
+        assert rng.seq == last  # the cached latest reading, while the sensor is silent
+        assert t_rng < 0.1 and t_health < 0.1, (t_rng, t_health)
+        assert first.recv(timeout_s=0.2) is None or first.lost == 0  # duplicates dropped
+
+
+def test_publish_hz_folds_frames(
+    device: Callable[..., PtyDevice], start_daemon: Any, endpoint: str, helpers: Any
+) -> None:
+    dev = device(rate_hz=250, output_enabled=False)
+    start_daemon("--device", dev.path, "--publish", endpoint, "--rate", "250", "--publish-hz", "50")
+    with Subscriber(endpoint) as sub:
+        helpers.wait_for(sub, helpers.is_range, timeout=10)
+        t0 = time.monotonic()
+        seqs = []
+        while time.monotonic() - t0 < 2.0:
+            m = sub.recv(timeout_s=0.5)
+            if isinstance(m, RangeMessage):
+                seqs.append(m.seq)
+        dev.pause(3600)
+        while (m := sub.recv(timeout_s=0.5)) is not None:
+            if isinstance(m, RangeMessage):
+                seqs.append(m.seq)
+    rate = sum(1 for _ in seqs) / 2.0
+    assert 30 <= rate <= 60  # at most 50 a second (loosely: the machine is shared)
+    assert seqs[-1] + 1 == dev.frames_sent  # seq still counts every frame
+    assert max(b - a for a, b in itertools.pairwise(seqs)) >= 3  # frames folded
+
+
+def test_sighup_reload_good_and_bad(
+    device: Callable[..., PtyDevice],
+    start_daemon: Any,
+    endpoint: str,
+    tmp_path: Path,
+    helpers: Any,
+) -> None:
+    dev = device(rate_hz=100, output_enabled=False)
+    cfg = tmp_path / "s.toml"
+    cfg.write_text(
+        f'[sensor]\nname = "one"\n[source]\ndevice = "{dev.path}"\n'
+        f'[publish]\nendpoint = "{endpoint}"\n'
+    )
+    d = start_daemon("--config", str(cfg))
+    with Subscriber(endpoint) as sub:
+        m = helpers.wait_for(sub, helpers.is_range, timeout=10)
+        assert m.sensor == "one"
+        cfg.write_text(cfg.read_text().replace('"one"', '"two"'))
+        d.proc.send_signal(signal.SIGHUP)
+        helpers.wait_for(sub, lambda m: isinstance(m, RangeMessage) and m.sensor == "two", 5)
+        cfg.write_text(cfg.read_text() + "[filter]\namp_ref = -1\n")
+        d.proc.send_signal(signal.SIGHUP)
+        time.sleep(0.5)
+        while sub.recv(timeout_s=0.05) is not None:
+            pass
+        m = helpers.wait_for(sub, helpers.is_range, timeout=5)
+        assert m.sensor == "two" and d.proc.poll() is None
+    log = d.log
+    assert "configuration reloaded" in log and "changed: sensor" in log
+    assert "keeping the running configuration" in log and "amp_ref" in log
+
+
+def test_systemd_notify_and_watchdog(
+    device: Callable[..., PtyDevice],
+    start_daemon: Any,
+    endpoint: str,
+    tmp_path: Path,
+    helpers: Any,
+) -> None:
+    path = str(tmp_path / "notify.sock")
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(path)
+    sock.settimeout(0.2)
+    try:
+        dev = device(rate_hz=100, output_enabled=False)
+        d = start_daemon(
+            "--device",
+            dev.path,
+            "--publish",
+            endpoint,
+            env={"NOTIFY_SOCKET": path, "WATCHDOG_USEC": "400000"},
+        )
+        seen: list[tuple[float, str]] = []
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 3.0:
+            try:
+                seen.append((time.monotonic(), sock.recv(4096).decode()))
+            except TimeoutError:
+                pass
+        d.proc.send_signal(signal.SIGTERM)
+        try:
+            while True:
+                seen.append((time.monotonic(), sock.recv(4096).decode()))
+        except TimeoutError:
+            pass
+        assert d.proc.wait(5) == 0
+    finally:
+        sock.close()
+    msgs = [m for _, m in seen]
+    assert "READY=1" in msgs
+    assert any(m.startswith("STATUS=connected,") and "fps" in m for m in msgs)
+    pings = [t for t, m in seen if m == "WATCHDOG=1"]
+    gaps = [b - a for a, b in itertools.pairwise(pings)]
+    assert len(pings) >= 4 and max(gaps) < 1.0  # every 0.5 s, never past WATCHDOG_USEC
+    assert sorted(gaps)[len(gaps) // 2] < 0.7  # the cadence is half the interval
+    assert msgs[-1] == "STOPPING=1"
+    assert msgs.index("READY=1") < len(msgs) - 1
+
+
+def test_watchdog_stops_when_the_loop_wedges(tmp_path: Path) -> None:
+    """A loop that stops running stops pinging: nothing pings from a thread."""
+    from lunad.daemon.config import load_config
+    from lunad.daemon.serve import Daemon
+
+    path = str(tmp_path / "n.sock")
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(path)
+    sock.settimeout(0.5)
+    from lunad.daemon.notify import Notifier
+
+    n = Notifier.from_env({"NOTIFY_SOCKET": path, "WATCHDOG_USEC": "200000"})
+    cfg = load_config(None, {"source.device": str(tmp_path / "none")})
+    daemon = Daemon(cfg, notifier=n)  # constructed, loop never run: a wedged loop
+    try:
+        time.sleep(0.5)
+        try:
+            got = sock.recv(100)
+        except TimeoutError:
+            got = b""
+        assert got == b""
+    finally:
+        sock.close()
+        n.close()
+        del daemon
