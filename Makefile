@@ -3,8 +3,9 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
+PREFIX ?= /opt/lunad
 
-.PHONY: demo test lint bench clean
+.PHONY: demo test lint bench clean install uninstall
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -22,6 +23,14 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(VENV)/bin/ruff check protocol filters sim daemon tests
 	$(VENV)/bin/python -m pytest
+
+## install: as root, install the systemd service (venv in $(PREFIX), lunad@.service); DESTDIR= stages
+install:
+	DESTDIR="$(DESTDIR)" PREFIX="$(PREFIX)" PYTHON="$(PYTHON)" sh systemd/install.sh install
+
+## uninstall: as root, remove it again (keeps /etc/lunad/*.toml unless PURGE=1)
+uninstall:
+	DESTDIR="$(DESTDIR)" PREFIX="$(PREFIX)" PURGE="$(PURGE)" sh systemd/install.sh uninstall
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check protocol filters sim daemon tests

@@ -6,6 +6,8 @@ import argparse
 import sys
 from typing import Any
 
+from lunad.daemon.source_args import add_source_args, source_overrides
+
 DESCRIPTION = """\
 Read a TF-Luna, clean every reading and publish it over ZeroMQ.
 
@@ -40,27 +42,17 @@ def add_parser(sub: Any) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.usage_exit_code = 78
-    p.add_argument("--config", metavar="FILE", help="TOML config file")
-    p.add_argument("--device", help="serial device path or pyserial URL (default /dev/serial0)")
-    p.add_argument("--baud", help="baud rate (default 115200)")
-    p.add_argument("--bus", help="read over I2C from /dev/i2c-BUS instead ('sim': simulated)")
-    p.add_argument("--address", help="I2C address (default 0x10)")
+    add_source_args(p)
     p.add_argument("--replay", metavar="FILE", help="replay a recording instead of a sensor")
     p.add_argument("--speed", help="replay speed factor, or 'max' (default 1)")
+    p.add_argument("--record", metavar="FILE", help="also record every byte read to FILE")
     p.add_argument("--publish", metavar="ENDPOINT", help="ZeroMQ endpoint to bind")
+    p.add_argument("--name", help="sensor name used in topics (default tfluna)")
     p.add_argument(
         "--publish-hz",
         metavar="N",
         help="low-power mode: read and filter every frame, publish at most N times a second",
     )
-    p.add_argument("--name", help="sensor name used in topics (default tfluna)")
-    p.add_argument("--rate", metavar="HZ", help="frame rate to set at start (default 100)")
-    p.add_argument(
-        "--no-configure",
-        action="store_true",
-        help="do not query the version or set rate and output at start",
-    )
-    p.add_argument("--log-level", choices=("debug", "info", "warning", "error"))
     p.set_defaults(func=run)
 
 
@@ -69,21 +61,14 @@ def run(args: argparse.Namespace) -> int:
     from lunad.daemon.config import load_config
     from lunad.daemon.errors import EX_CONFIG, EX_UNAVAILABLE, ConfigError, PublishError
 
-    kind = "replay" if args.replay else "i2c" if args.bus else "serial" if args.device else None
     overrides: dict[str, Any] = {
-        "source.kind": kind,
-        "source.device": args.device,
-        "source.baud": args.baud,
-        "source.bus": args.bus,
-        "source.address": args.address,
+        **source_overrides(args),
         "source.path": args.replay,
         "source.speed": args.speed,
+        "source.record": args.record,
         "publish.endpoint": args.publish,
         "publish.publish_hz": args.publish_hz,
         "sensor.name": args.name,
-        "sensor.frame_rate_hz": args.rate,
-        "sensor.configure": False if args.no_configure else None,
-        "log_level": args.log_level,
     }
     try:
         cfg = load_config(args.config, overrides)
@@ -94,6 +79,16 @@ def run(args: argparse.Namespace) -> int:
     from lunad.daemon.cli import setup_logging
     from lunad.daemon.publisher import Publisher
     from lunad.daemon.serve import Daemon
+
+    if cfg.source.kind == "replay":
+        from lunad.daemon.errors import LunadError
+        from lunad.daemon.replay_source import ReplaySource
+
+        try:
+            ReplaySource.from_config(cfg.source).close()
+        except (LunadError, ValueError) as exc:
+            print(f"lunad serve: --replay: {exc}", file=sys.stderr)
+            return EX_CONFIG
 
     setup_logging(cfg.log_level)
     daemon = Daemon(cfg, args.config, overrides)

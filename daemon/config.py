@@ -42,6 +42,7 @@ FLAGS: dict[str, str] = {
     "source.address": "--address",
     "source.path": "--replay",
     "source.speed": "--speed",
+    "source.record": "--record",
     "publish.endpoint": "--publish",
     "publish.publish_hz": "--publish-hz",
     "log_level": "--log-level",
@@ -73,9 +74,10 @@ class SourceSection(_Section):
 
     ``kind`` picks the backend: ``serial`` reads ``device`` at ``baud``; ``i2c`` reads
     ``bus`` (a number for /dev/i2c-N, or ``sim`` for the simulated bus) at ``address``;
-    ``replay`` plays the recording at ``path`` at ``speed`` x real time (``max``: as
-    fast as possible). ``rate_hz`` is filled in from [sensor] for backends that pace
-    themselves (I2C).
+    ``replay`` plays the recording at ``path`` at ``speed`` x real time (``max``, stored
+    as None: as fast as possible). ``record`` names a file that gets every byte read,
+    with its read time (``lunad serve --record``; see ``lunad.daemon.record``).
+    ``rate_hz`` is filled in from [sensor] for backends that pace themselves (I2C).
     """
 
     kind: Literal["serial", "i2c", "replay"] = "serial"
@@ -84,7 +86,8 @@ class SourceSection(_Section):
     bus: Annotated[str, Field(pattern=r"^(\d+|sim)$")] = "1"
     address: Annotated[int, Field(ge=0x08, le=0x77)] = 0x10
     path: str | None = None
-    speed: float | Literal["max"] = 1.0
+    speed: float | None = 1.0
+    record: str | None = None
     rate_hz: int = 100
 
     @field_validator("address", mode="before")
@@ -97,10 +100,15 @@ class SourceSection(_Section):
                 raise ValueError("must be an I2C address like 0x10") from None
         return v
 
+    @field_validator("speed", mode="before")
+    @classmethod
+    def _speed_max(cls, v: Any) -> Any:
+        return None if v == "max" else v
+
     @field_validator("speed")
     @classmethod
-    def _speed(cls, v: float | str) -> float | str:
-        if isinstance(v, float) and not 0 < v <= 1000:
+    def _speed(cls, v: float | None) -> float | None:
+        if v is not None and not 0 < v <= 1000:
             raise ValueError("must be a factor in (0, 1000] or max")
         return v
 

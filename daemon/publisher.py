@@ -33,6 +33,10 @@ import zmq
 from lunad.daemon.errors import PublishError
 
 LINGER_MS = 200  # on close, how long queued messages may still go out
+_EVENTS = int(zmq.EVENTS)  # plain ints: pyzmq's enum arithmetic costs on every call
+_POLLIN = int(zmq.POLLIN)
+_NOBLOCK = int(zmq.NOBLOCK)
+_MORE = int(zmq.NOBLOCK | zmq.SNDMORE)
 WAKER_HANDSHAKE_S = 1.0  # the waker re-arms after a pump, or after this at the latest
 SUBSCRIBE = 1  # first byte of an XPUB subscription message (zmq_socket(3))
 
@@ -47,6 +51,8 @@ class Publisher:
         self.subscriptions = 0
         self._last: dict[bytes, bytes] = {}
         self._pumped = threading.Event()
+        self.pending = True
+        """Set by the waker: the socket may hold a subscription; ``pump`` clears it."""
         self._waker: threading.Thread | None = None
         self._waker_stop_r, self._waker_stop_w = -1, -1
         if endpoint.startswith("ipc://"):
@@ -68,8 +74,10 @@ class Publisher:
         Returns False (and counts it) when the socket refused the message.
         """
         self._last[topic] = payload
+        sock = self._sock
         try:
-            self._sock.send_multipart((topic, payload), flags=zmq.NOBLOCK, copy=True)
+            sock.send(topic, _MORE)
+            sock.send(payload, _NOBLOCK)  # a PUB that took the first part takes the rest
         except zmq.Again:
             self.dropped_sends += 1
             return False
@@ -77,10 +85,15 @@ class Publisher:
         return True
 
     def pump(self) -> int:
-        """Answer new subscriptions with the cached last values; returns how many came."""
+        """Answer new subscriptions with the cached last values; returns how many came.
+
+        The loop calls it when ``pending`` is set (the waker saw the socket stir) and
+        with every health message as a fallback, so frames do not pay for it.
+        """
         sock = self._sock
+        self.pending = False
         n = 0
-        while sock.getsockopt(zmq.EVENTS) & zmq.POLLIN:
+        while sock.getsockopt(_EVENTS) & _POLLIN:
             try:
                 msg = sock.recv(zmq.NOBLOCK)
             except zmq.Again:
@@ -110,6 +123,7 @@ class Publisher:
                 if self._waker_stop_r in ready:
                     return
                 self._pumped.clear()
+                self.pending = True
                 wake()
                 self._pumped.wait(WAKER_HANDSHAKE_S)
 

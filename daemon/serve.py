@@ -11,6 +11,11 @@ reconnect schedule, the last-value cache for late subscribers, the systemd watch
 A lost or absent device never stops the daemon: it reports ``reconnecting`` and
 retries with backoff (0.1 s doubling to 2 s) until the path works again.
 
+While bytes flow, an inner loop only reads, parses, filters and sends; it returns to
+the housekeeping at the next deadline or when a flag asks for it. ``t_unix_ns`` is
+the frame's monotonic read time plus an offset to the wall clock refreshed with every
+health message, so a wall-clock step shows up within one health interval.
+
 Low-power mode (``publish_hz``): the loop sleeps until the next publish time, reads
 everything the port holds, filters every frame and publishes only the latest; ``seq``
 still counts every frame, so subscribers see how many were folded.
@@ -33,6 +38,7 @@ from lunad.daemon.errors import PublishError, SourceLostError, SourceOpenError
 from lunad.daemon.health import Health, State
 from lunad.daemon.notify import Notifier
 from lunad.daemon.publisher import Publisher
+from lunad.daemon.record import Recorder
 from lunad.daemon.source import Source, open_source
 from lunad.filters import Estimate, RangeFilter, Status
 from lunad.protocol import commands
@@ -82,6 +88,7 @@ class Daemon:
         self._source: Source | None = None
         self.pub: Publisher | None = None
         self.parser = FrameParser()
+        self.recorder: Recorder | None = None
         self.seq = -1
         self._reasons_json: dict[tuple[str, ...], str] = {}
         self._apply(cfg)
@@ -136,11 +143,16 @@ class Daemon:
         self._open_failures = 0
         self._last_retry_log = 0
         self._next_publish = now
+        self._unix_offset_ns = time.time_ns() - time.monotonic_ns()
         notifier = self.notifier
         wd = notifier.watchdog_interval_s
         wd_ns = int(wd * NS) if wd else None
         next_wd = now
         ready_sent = False
+        if self.cfg.source.record:
+            self.recorder = Recorder(self.cfg.source.record, source_desc=self._source_desc())
+            log.info("recording every byte read to %s", self.cfg.source.record)
+        replay_waiting_logged = False
         log.info(
             "serving sensor %r from %s, publishing on %s%s",
             self.cfg.sensor.name,
@@ -156,14 +168,20 @@ class Daemon:
             if self._reload_requested:
                 self._reload_requested = False
                 self._reload(now)
-            if self._source is None and now >= self._next_open:
+            held = self.cfg.source.kind == "replay" and not self.pub.subscriptions
+            if held and not replay_waiting_logged:
+                log.info("replay waits for a subscriber before it starts")
+                replay_waiting_logged = True
+            if self._source is None and now >= self._next_open and not held:
                 self._try_open(now)
-                if not ready_sent:
-                    notifier.ready()
-                    ready_sent = True
+            if not ready_sent:
+                notifier.ready()
+                ready_sent = True
             if now >= self._next_health:
                 self._publish_health(now)
-            self.pub.pump()
+                self.pub.pump()
+            elif self.pub.pending:
+                self.pub.pump()
             now = time.monotonic_ns()
             if wd_ns is not None and now >= next_wd:
                 notifier.watchdog()
@@ -172,7 +190,8 @@ class Daemon:
             src = self._source
             deadlines = [self._next_health] + ([next_wd] if wd_ns is not None else [])
             if src is None:
-                deadlines.append(self._next_open)
+                if not held:
+                    deadlines.append(self._next_open)
                 self._sleep_until(min(deadlines), now)
                 continue
             if getattr(src, "exhausted", False):
@@ -180,12 +199,15 @@ class Daemon:
                 break
             try:
                 if self.cfg.publish.publish_hz:
-                    deadlines.append(self._next_publish)
-                    self._sleep_until(min(deadlines), now)
-                    got = self._read_folded(src)
+                    if self.health.state is State.CONNECTED:
+                        deadlines.append(self._next_publish)
+                        self._sleep_until(min(deadlines), now)
+                        got = self._read_folded(src)
+                    else:  # silent sensor: block in the read, no wake-ups at publish_hz
+                        slice_ns = min(READ_SLICE_S * NS, max(0, min(deadlines) - now))
+                        got = self._read_folded(src, slice_ns / NS)
                 else:
-                    slice_ns = min(READ_SLICE_S * NS, max(0, min(deadlines) - now))
-                    got = self._read_each(src, slice_ns / NS)
+                    got = self._read_each(src, min(now + int(READ_SLICE_S * NS), *deadlines))
             except SourceLostError as exc:
                 if self._stopping:
                     break
@@ -194,6 +216,8 @@ class Daemon:
             self._after_read(got)
 
         self._drop_source()
+        if self.recorder is not None:
+            self.recorder.close()
         notifier.stopping()
         log.info(
             "stopped: %d frames published, %d checksum errors, %d bytes discarded",
@@ -207,27 +231,53 @@ class Daemon:
         self._wake.wait(max(0.0, (deadline_ns - now) / NS))
         self._wake.clear()
 
-    def _read_each(self, src: Source, timeout_s: float) -> bool:
-        """Blocking read; publish every frame. True when bytes came."""
-        chunk = src.read(timeout_s)
-        if chunk is None:
-            return False
-        items = self.parser.feed(chunk.data, chunk.t_mono_ns)
-        if items:
-            t_unix_ns = time.time_ns() - (time.monotonic_ns() - chunk.t_mono_ns)
-            for item in items:
+    def _read_each(self, src: Source, until_ns: int) -> bool:
+        """Read and publish every frame until ``until_ns`` or a reason to look up.
+
+        The inner loop of the daemon: while bytes flow it only reads, parses, filters
+        and sends. It returns to the housekeeping loop at the deadline, on a read
+        timeout or wake-up, on a stop/reload request, a pending subscription, or a
+        state change to report. True when any bytes came.
+        """
+        got = False
+        read = src.read
+        feed = self.parser.feed
+        step = self._step
+        publish = self._publish
+        pub = self.pub
+        health = self.health
+        assert pub is not None
+        while not (self._stopping or self._reload_requested or pub.pending):
+            left = until_ns - time.monotonic_ns()
+            if left <= 0:
+                break
+            chunk = read(left / NS)
+            if chunk is None:
+                break
+            got = True
+            self._last_bytes = t_mono = chunk.t_mono_ns
+            if self.recorder is not None:
+                self.recorder(chunk)
+            t_unix = t_mono + self._unix_offset_ns
+            for item in feed(chunk.data, t_mono):
                 if type(item) is Frame:
-                    self._publish(item, self._step(item), chunk.t_mono_ns, t_unix_ns)
+                    publish(item, step(item), t_mono, t_unix)
                 else:
                     self._on_reply(item)  # type: ignore[arg-type]
-        return True
+            if health.state is not State.CONNECTED or self._version_deadline is not None:
+                break
+        return got
 
-    def _read_folded(self, src: Source) -> bool:
+    def _read_folded(self, src: Source, first_timeout_s: float = 0.0) -> bool:
         """Read all that is waiting, filter every frame, publish the latest only."""
         got = False
         last: tuple[Frame, Estimate, int] | None = None
-        while (chunk := src.read(0.0)) is not None:
+        timeout = first_timeout_s
+        while (chunk := src.read(timeout)) is not None:
+            timeout = 0.0
             got = True
+            if self.recorder is not None:
+                self.recorder(chunk)
             for item in self.parser.feed(chunk.data, chunk.t_mono_ns):
                 if type(item) is Frame:
                     last = (item, self._step(item), chunk.t_mono_ns)
@@ -238,7 +288,7 @@ class Daemon:
         self._next_publish = max(self._next_publish + period, now)
         if last is not None:
             frame, est, t_mono = last
-            self._publish(frame, est, t_mono, time.time_ns() - (now - t_mono))
+            self._publish(frame, est, t_mono, t_mono + self._unix_offset_ns)
         return got
 
     def _step(self, frame: Frame) -> Estimate:
@@ -302,6 +352,7 @@ class Daemon:
     def _publish_health(self, now: int) -> None:
         pub = self.pub
         assert pub is not None
+        self._unix_offset_ns = time.time_ns() - time.monotonic_ns()
         msg = self.health.message(self.parser.stats, pub.dropped_sends, now)
         pub.send(self._health_topic, encode_health(msg))
         self._next_health = now + int(self.cfg.publish.health_interval_s * NS)
@@ -366,11 +417,7 @@ class Daemon:
         if src is None or not self.cfg.sensor.configure or self.cfg.source.kind == "replay":
             return None
         try:
-            src.write(
-                commands.get_version()
-                + commands.set_frame_rate(self.cfg.sensor.frame_rate_hz)
-                + commands.set_output_enabled(True)
-            )
+            src.write(commands.startup(self.cfg.sensor.frame_rate_hz))
         except SourceLostError as exc:
             log.warning("cannot configure the sensor: %s", exc)
             return None

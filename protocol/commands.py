@@ -238,6 +238,11 @@ def get_full_version() -> bytes:
     return encode_command(CommandId.GET_FULL_VERSION)
 
 
+def startup(rate_hz: int) -> bytes:
+    """What a host sends at connect: firmware version query, frame rate, output on."""
+    return get_version() + set_frame_rate(rate_hz) + set_output_enabled(True)
+
+
 def decode_reply(reply: CommandReply) -> ReplyValue:
     """The value a reply carries, typed by its command.
 

@@ -86,10 +86,6 @@ def topic(kind: str, sensor: str) -> bytes:
     return f"{kind}/{sensor}".encode()
 
 
-def _num(x: float | None, ndigits: int) -> str:
-    return "null" if x is None else repr(round(x, ndigits))
-
-
 def encode_range(
     sensor_json: str,
     seq: int,
@@ -113,13 +109,16 @@ def encode_range(
         reasons_json: the reasons list already JSON-encoded, e.g. ``'["weak_signal"]'``.
         Everything else as in ``RangeMessage``; metres are rounded to 0.1 mm.
     """
+    # None -> null written out in place, not through a helper: no calls per field.
     return (
         f'{{"v":1,"sensor":{sensor_json},"seq":{seq},"t_mono_ns":{t_mono_ns},'
-        f'"t_unix_ns":{t_unix_ns},"raw_m":{_num(raw_m, 4)},"amp":{amp},'
+        f'"t_unix_ns":{t_unix_ns},'
+        f'"raw_m":{"null" if raw_m is None else repr(round(raw_m, 4))},"amp":{amp},'
         f'"temp_c":{round(temp_c, 3)!r},"strength":{round(strength, 5)!r},'
-        f'"range_m":{_num(range_m, 4)},"sigma_m":{_num(sigma_m, 5)},'
-        f'"lux_est":{_num(lux_est, 1)},"status":"{status}","reasons":{reasons_json},'
-        f'"zone":"{zone}"}}'
+        f'"range_m":{"null" if range_m is None else repr(round(range_m, 4))},'
+        f'"sigma_m":{"null" if sigma_m is None else repr(round(sigma_m, 5))},'
+        f'"lux_est":{"null" if lux_est is None else repr(round(lux_est, 1))},'
+        f'"status":"{status}","reasons":{reasons_json},"zone":"{zone}"}}'
     ).encode()
 
 

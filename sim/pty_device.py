@@ -66,6 +66,9 @@ class PtyDevice:
         truth_out: text file that gets one CSV row of truth and reading per frame.
         output_enabled: start with the output on; off makes the sensor wait for the
             host's ``output on`` command, so every frame sent finds a reader.
+        on_frame_sent: called from the device thread with (the frame's index among
+            good frames sent, ``time.monotonic_ns()``) once its last byte is written;
+            benchmarks measure latency from it.
 
     Use as a context manager: ``with PtyDevice(...) as dev: serve(dev.path)``.
     """
@@ -82,6 +85,7 @@ class PtyDevice:
         corrupt_rate: float = 0.0,
         truth_out: TextIO | None = None,
         output_enabled: bool = True,
+        on_frame_sent: Callable[[int, int], None] | None = None,
     ) -> None:
         fixed = truth if isinstance(truth, Truth) else Truth()
         self._truth: Callable[[float], Truth] = truth if callable(truth) else (lambda _t: fixed)
@@ -93,6 +97,7 @@ class PtyDevice:
         self.garbage_rate = garbage_rate
         self.corrupt_rate = corrupt_rate
         self.truth_out = truth_out
+        self.on_frame_sent = on_frame_sent
         self.frames_sent = 0
         self.frames_corrupted = 0
         self.frames_unread = 0
@@ -290,8 +295,12 @@ class PtyDevice:
             raise
         del self._out[:n]
         ends = self._frame_ends
+        hook = self.on_frame_sent
+        t_ns = time.monotonic_ns() if hook is not None else 0
         while ends and ends[0] <= n:
             ends.popleft()
+            if hook is not None:
+                hook(self.frames_sent, t_ns)
             self.frames_sent += 1
         for k in range(len(ends)):
             ends[k] -= n

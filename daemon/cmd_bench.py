@@ -1,0 +1,232 @@
+"""``lunad bench``: performance figures you can quote."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+DESCRIPTION = """\
+Measure lunad on this machine and print the figures.
+
+  bulk decode     numpy decode of a recorded stream (frames/s), checked frame for
+                  frame against the streaming parser
+  pipeline        parse + filter + encode of one frame, pure Python, no I/O (us)
+  serve           `lunad serve` at 250 Hz against the virtual sensor, and the same
+                  with --publish-hz 50: CPU per frame (/proc/<pid>/stat, all
+                  threads), latency from the frame's last byte written to a
+                  subscriber's receipt (p50, p99), idle CPU with a silent sensor,
+                  peak RSS, start-up to the first message. A floor reference (a
+                  minimal read-checksum-publish loop, lunad.daemon.bench) runs in
+                  the same rounds, alternating; lunad / floor is the headline.
+
+The machine should be otherwise quiet; the serve figures are medians over --rounds.
+"""
+
+EPILOG = """\
+examples:
+  lunad bench                         # full run, about 3 minutes
+  lunad bench --quick                 # short windows, one round (smoke test)
+  lunad bench --format json > bench.json
+  lunad bench --rounds 5 --duration 20
+  python -m lunad.daemon.bench --device /dev/serial0 --publish tcp://127.0.0.1:7790
+                                      # the floor loop alone
+"""
+
+TARGETS = {
+    "bulk_fps_min": 2_000_000,
+    "cpu_ratio_max": 1.25,
+    "p99_us_max": 1000.0,
+    "p99_ratio_max": 1.5,
+    "idle_cpu_pct_max": 0.0,
+    "rss_mib_max": 60.0,
+    "hz_cpu_ratio_max": 0.4,
+    "startup_s_max": 1.5,
+}
+
+
+def add_parser(sub: Any) -> None:
+    """Register ``bench``."""
+    p = sub.add_parser(
+        "bench",
+        help="measure throughput, CPU, latency and memory",
+        description=DESCRIPTION,
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--quick", action="store_true", help="short windows and one round")
+    p.add_argument("--format", choices=("table", "json"), default="table", help="output format")
+    p.add_argument(
+        "--duration",
+        type=float,
+        metavar="S",
+        help="steady window of each serve run, seconds (default 12; --quick 2)",
+    )
+    p.add_argument(
+        "--rounds", type=int, metavar="N", help="serve rounds, alternating (default 3; --quick 1)"
+    )
+    p.add_argument(
+        "--publish-hz", type=float, default=50.0, metavar="N", help="low-power rate (default 50)"
+    )
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run every benchmark and print the figures; 0 when every run worked."""
+    import dataclasses
+    import json
+    import logging
+
+    from lunad.daemon import bench
+
+    log = logging.getLogger("lunad.bench")
+    quick = bool(args.quick)
+    duration = args.duration if args.duration is not None else (2.0 if quick else 12.0)
+    rounds = args.rounds if args.rounds is not None else (1 if quick else 3)
+    if duration <= 0 or rounds < 1:
+        print("lunad bench: --duration must be > 0 and --rounds >= 1", file=sys.stderr)
+        return 2
+
+    log.info("bulk decode")
+    bulk = bench.bench_bulk(200_000 if quick else 2_000_000, repeats=3 if quick else 5)
+    log.info("pipeline")
+    pipe = bench.bench_pipeline(5_000 if quick else 50_000)
+    log.info("serve: %d round(s) of %.0f s windows", rounds, duration)
+    serve = bench.bench_serve(
+        rounds=rounds,
+        duration_s=duration,
+        warmup_s=1.0 if quick else 2.0,
+        idle_s=1.0 if quick else 3.0,
+        publish_hz=args.publish_hz,
+        progress=log.info,
+    )
+    lunad, floor, low = serve["lunad"], serve["floor"], serve["lunad_hz"]
+    ratios = {
+        "cpu": lunad.cpu_us_per_frame / floor.cpu_us_per_frame,
+        "p99": lunad.lat_p99_us / floor.lat_p99_us,
+        "hz_cpu": low.cpu_us_per_frame / floor.cpu_us_per_frame,
+    }
+    met = {
+        "bulk_fps": bulk.bulk_fps >= TARGETS["bulk_fps_min"] and bulk.same_as_streaming,
+        "cpu_ratio": ratios["cpu"] <= TARGETS["cpu_ratio_max"],
+        "p99": lunad.lat_p99_us <= TARGETS["p99_us_max"]
+        and ratios["p99"] <= TARGETS["p99_ratio_max"],
+        "idle_cpu": lunad.idle_cpu_pct <= TARGETS["idle_cpu_pct_max"],
+        "rss": max(lunad.rss_mib, low.rss_mib) < TARGETS["rss_mib_max"],
+        "hz_cpu_ratio": ratios["hz_cpu"] <= TARGETS["hz_cpu_ratio_max"],
+        "startup": lunad.startup_s <= TARGETS["startup_s_max"],
+    }
+    failed_runs = [
+        r for s in serve.values() for r in s.runs if r.exit_code not in (0, None) or not r.frames
+    ]
+    if args.format == "json":
+        doc = {
+            "bulk": dataclasses.asdict(bulk),
+            "pipeline": dataclasses.asdict(pipe),
+            "serve": {k: dataclasses.asdict(v) for k, v in serve.items()},
+            "ratios": ratios,
+            "targets": TARGETS,
+            "met": met,
+            "settings": {"quick": quick, "duration_s": duration, "rounds": rounds},
+        }
+        print(json.dumps(doc, indent=2))
+    else:
+        print(render_table(bulk, pipe, lunad, floor, low, ratios, met, rounds, duration))
+    for r in failed_runs:
+        log.error("%s run exited %s:\n%s", r.variant, r.exit_code, r.log_tail)
+    return 1 if failed_runs else 0
+
+
+def render_table(
+    bulk: Any,
+    pipe: Any,
+    lunad: Any,
+    floor: Any,
+    low: Any,
+    ratios: dict[str, float],
+    met: dict[str, bool],
+    rounds: int,
+    duration: float,
+) -> str:
+    """The figures as a plain-text table (one line per figure)."""
+    hz = f"{low.publish_hz:g}"
+
+    def ok(key: str) -> str:
+        return "met" if met[key] else "MISSED"
+
+    rows: list[tuple[str, str, str]] = [
+        (
+            "bulk decode (numpy)",
+            f"{bulk.bulk_fps / 1e6:.2f} M frames/s",
+            f">= 2 M: {ok('bulk_fps')}",
+        ),
+        ("  same frames as streaming parser", "yes" if bulk.same_as_streaming else "NO", ""),
+        ("  streaming parser, whole stream", f"{bulk.streaming_fps / 1e3:.0f} k frames/s", ""),
+        ("pipeline parse+filter+encode", f"{pipe.total_us:.1f} us/frame", ""),
+        (
+            "  parse / filter / encode",
+            f"{pipe.parse_us:.1f} / {pipe.filter_us:.1f} / {pipe.encode_us:.1f} us",
+            "",
+        ),
+        (
+            "serve 250 Hz CPU, lunad",
+            f"{lunad.cpu_us_per_frame:.0f} us/frame",
+            f"{lunad.cpu_pct:.1f} % of a core",
+        ),
+        (
+            "serve 250 Hz CPU, floor",
+            f"{floor.cpu_us_per_frame:.0f} us/frame",
+            f"{floor.cpu_pct:.1f} % of a core",
+        ),
+        ("  lunad / floor CPU", f"{ratios['cpu']:.2f}x", f"<= 1.25x: {ok('cpu_ratio')}"),
+        ("latency p50, lunad / floor", f"{lunad.lat_p50_us:.0f} / {floor.lat_p50_us:.0f} us", ""),
+        (
+            "latency p99, lunad / floor",
+            f"{lunad.lat_p99_us:.0f} / {floor.lat_p99_us:.0f} us",
+            f"<= 1 ms and <= 1.5x ({ratios['p99']:.2f}x): {ok('p99')}",
+        ),
+        (
+            "idle CPU (silent sensor), lunad / floor",
+            f"{lunad.idle_cpu_pct:.2f} / {floor.idle_cpu_pct:.2f} %",
+            f"0 %: {ok('idle_cpu')}",
+        ),
+        (
+            "peak RSS, lunad / floor",
+            f"{lunad.rss_mib:.1f} / {floor.rss_mib:.1f} MiB",
+            f"< 60 MiB: {ok('rss')}",
+        ),
+        (
+            "start-up to first message, lunad / floor",
+            f"{lunad.startup_s:.2f} / {floor.startup_s:.2f} s",
+            f"<= 1.5 s: {ok('startup')}",
+        ),
+        (
+            f"--publish-hz {hz} CPU",
+            f"{low.cpu_us_per_frame:.0f} us/frame",
+            f"{low.cpu_pct:.1f} % of a core",
+        ),
+        (
+            f"  --publish-hz {hz} / floor CPU",
+            f"{ratios['hz_cpu']:.2f}x",
+            f"<= 0.4x: {ok('hz_cpu_ratio')}",
+        ),
+        (
+            f"  --publish-hz {hz} latency p50 / p99",
+            f"{low.lat_p50_us:.0f} / {low.lat_p99_us:.0f} us",
+            "by design up to one period",
+        ),
+        (
+            f"  --publish-hz {hz} idle CPU, peak RSS",
+            f"{low.idle_cpu_pct:.2f} %, {low.rss_mib:.1f} MiB",
+            "",
+        ),
+    ]
+    w0 = max(len(r[0]) for r in rows)
+    w1 = max(len(r[1]) for r in rows)
+    head = (
+        f"lunad bench: serve figures are medians of {rounds} round(s), {duration:g} s windows, "
+        "250 Hz sensor; CPU is per sensor frame"
+    )
+    lines = [head, ""]
+    lines += [f"{a:<{w0}}  {b:<{w1}}  {c}".rstrip() for a, b, c in rows]
+    return "\n".join(lines)

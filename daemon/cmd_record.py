@@ -1,0 +1,121 @@
+"""``lunad record``: save a sensor's raw byte stream with read times, for replay."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+import time
+from typing import Any
+
+from lunad.daemon.source_args import add_source_args, source_overrides
+
+log = logging.getLogger("lunad.record")
+
+DESCRIPTION = """\
+Record everything a sensor sends, byte for byte, with the time each chunk was read.
+The file format is versioned and append-only; a power cut costs at most the last
+second, and a torn last record is skipped on replay. Replay it through the very
+parser and filter the daemon uses with `lunad serve --replay FILE`.
+
+Recording while the daemon runs: use `lunad serve --record FILE` instead (a port
+opens exclusively, so the two cannot share it).
+"""
+
+EPILOG = """\
+examples:
+  lunad record --device /dev/serial0 --out field.lunarec
+  lunad record --device /dev/ttyUSB0 --rate 250 --duration 60 --out sun-test.lunarec
+  lunad record --bus 1 --out i2c.lunarec
+  lunad serve --replay field.lunarec --speed max     # then: lunad watch
+"""
+
+BACKOFF_MAX_S = 2.0
+
+
+def add_parser(sub: Any) -> None:
+    """Register ``record``."""
+    p = sub.add_parser(
+        "record",
+        help="record a sensor's raw byte stream",
+        description=DESCRIPTION,
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.usage_exit_code = 78
+    add_source_args(p)
+    p.add_argument("--out", required=True, metavar="FILE", help="recording to write or extend")
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Record until SIGINT/SIGTERM or ``--duration``; reconnects like the daemon."""
+    from lunad.daemon.cli import setup_logging
+    from lunad.daemon.config import load_config
+    from lunad.daemon.errors import (
+        EX_CONFIG,
+        ConfigError,
+        LunadError,
+        SourceLostError,
+        SourceOpenError,
+    )
+    from lunad.daemon.record import Recorder
+    from lunad.daemon.source import Source, open_source
+    from lunad.protocol import commands
+
+    try:
+        cfg = load_config(args.config, source_overrides(args))
+    except ConfigError as exc:
+        print(f"lunad record: {exc}", file=sys.stderr)
+        return EX_CONFIG
+    setup_logging(cfg.log_level)
+    stop = threading.Event()
+    src: Source | None = None
+
+    def on_signal(*_: object) -> None:
+        stop.set()
+        if src is not None:
+            src.cancel()
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, on_signal)
+    deadline = None if args.duration is None else time.monotonic() + args.duration
+    backoff = 0.1
+    try:
+        rec = Recorder(args.out, source_desc=f"{cfg.source.kind} {cfg.source.device}")
+    except (LunadError, OSError, ValueError) as exc:
+        print(f"lunad record: --out: {exc}", file=sys.stderr)
+        return EX_CONFIG
+    with rec:
+        while not stop.is_set():
+            left = None if deadline is None else deadline - time.monotonic()
+            if left is not None and left <= 0:
+                break
+            if src is None:
+                try:
+                    src = open_source(cfg.source)
+                except SourceOpenError as exc:
+                    log.warning("%s; retrying", exc)
+                    stop.wait(min(backoff, left or backoff))
+                    backoff = min(backoff * 2, BACKOFF_MAX_S)
+                    continue
+                backoff = 0.1
+                log.info("recording %s to %s", src, args.out)
+                if cfg.sensor.configure:
+                    src.write(commands.startup(cfg.sensor.frame_rate_hz))
+            try:
+                chunk = src.read(min(0.5, left) if left is not None else 0.5)
+            except SourceLostError as exc:
+                log.warning("lost the source: %s; reconnecting", exc)
+                src.close()
+                src = None
+                continue
+            if chunk is not None:
+                rec(chunk)
+        if src is not None:
+            src.close()
+    print(f"recorded {rec.records} chunks, {rec.bytes} bytes to {args.out}")
+    return 0

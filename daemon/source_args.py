@@ -1,0 +1,38 @@
+"""Command-line flags that choose and set up a source, shared by every sub-command
+that talks to a sensor (python-can's ``add_bus_arguments`` pattern)."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_source_args(p: argparse.ArgumentParser) -> None:
+    """The flags that choose and set up a source; shared by serve, record and calibrate."""
+    p.add_argument("--config", metavar="FILE", help="TOML config file")
+    p.add_argument("--device", help="serial device path or pyserial URL (default /dev/serial0)")
+    p.add_argument("--baud", help="baud rate (default 115200)")
+    p.add_argument("--bus", help="read over I2C from /dev/i2c-BUS instead ('sim': simulated)")
+    p.add_argument("--address", help="I2C address (default 0x10)")
+    p.add_argument("--rate", metavar="HZ", help="frame rate to set at start (default 100)")
+    p.add_argument(
+        "--no-configure",
+        action="store_true",
+        help="do not query the version or set rate and output at start",
+    )
+    p.add_argument("--log-level", choices=("debug", "info", "warning", "error"))
+
+
+def source_overrides(args: argparse.Namespace) -> dict[str, object]:
+    """Config overrides (dotted field -> value) from ``add_source_args`` flags."""
+    replay = getattr(args, "replay", None)
+    kind = "replay" if replay else "i2c" if args.bus else "serial" if args.device else None
+    return {
+        "source.kind": kind,
+        "source.device": args.device,
+        "source.baud": args.baud,
+        "source.bus": args.bus,
+        "source.address": args.address,
+        "sensor.frame_rate_hz": args.rate,
+        "sensor.configure": False if args.no_configure else None,
+        "log_level": args.log_level,
+    }

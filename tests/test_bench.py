@@ -1,0 +1,98 @@
+"""``lunad bench``: the smoke test of ``--quick`` (about 20 s), and the floor's command bytes.
+
+The full benchmark is not a test; run ``lunad bench`` (docs/performance.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from typing import Any
+
+import pytest
+
+from lunad.daemon import bench, cmd_bench
+from lunad.protocol import commands
+
+
+def _run(*argv: str, capsys: Any) -> tuple[int, str]:
+    parser = argparse.ArgumentParser(prog="lunad")
+    cmd_bench.add_parser(parser.add_subparsers())
+    args = parser.parse_args(["bench", *argv])
+    code = args.func(args)
+    return code, capsys.readouterr().out
+
+
+def test_floor_sends_the_encoders_output_on_command() -> None:
+    assert bench.OUTPUT_ON == commands.set_output_enabled(True)
+
+
+def test_quick_json_has_every_figure(capsys: Any) -> None:
+    code, out = _run("--quick", "--format", "json", capsys=capsys)
+    assert code == 0
+    doc = json.loads(out)
+    assert doc["bulk"]["same_as_streaming"] is True
+    assert doc["bulk"]["bulk_fps"] > 0
+    assert doc["pipeline"]["total_us"] > 0
+    for key in ("lunad", "floor", "lunad_hz"):
+        s = doc["serve"][key]
+        for figure in (
+            "cpu_us_per_frame",
+            "lat_p50_us",
+            "lat_p99_us",
+            "idle_cpu_pct",
+            "rss_mib",
+            "startup_s",
+        ):
+            assert s[figure] == s[figure], f"{key}.{figure} is NaN"  # NaN != NaN
+        assert all(r["received"] > 0 and r["exit_code"] == 0 for r in s["runs"])
+    assert set(doc["ratios"]) == {"cpu", "p99", "hz_cpu"}
+    assert set(doc["met"]) >= {"bulk_fps", "cpu_ratio", "p99", "idle_cpu", "rss", "startup"}
+
+
+def test_table_renders_every_line() -> None:
+    b = bench.BulkResult(10, 90, 3e6, 2e5, True)
+    p = bench.PipelineResult(10, 1.0, 2.0, 3.0, 6.0)
+
+    def summary(variant: str, hz: float | None) -> bench.ServeSummary:
+        return bench.ServeSummary(variant, hz, 1, 100.0, 2.5, 300.0, 600.0, 0.0, 50.0, 0.5)
+
+    text = cmd_bench.render_table(
+        b,
+        p,
+        summary("lunad", None),
+        summary("floor", None),
+        summary("lunad", 50.0),
+        {"cpu": 1.0, "p99": 1.0, "hz_cpu": 1.0},
+        dict.fromkeys(
+            ("bulk_fps", "cpu_ratio", "p99", "idle_cpu", "rss", "hz_cpu_ratio", "startup"), True
+        ),
+        1,
+        2.0,
+    )
+    for word in (
+        "bulk decode",
+        "pipeline",
+        "CPU",
+        "p50",
+        "p99",
+        "idle",
+        "RSS",
+        "start-up",
+        "--publish-hz 50",
+    ):
+        assert word in text
+    assert "MISSED" not in text
+
+
+@pytest.mark.parametrize("argv", [["--help"]])
+def test_floor_help_runs(argv: list[str]) -> None:
+    out = subprocess.run(
+        [sys.executable, "-m", "lunad.daemon.bench", *argv],
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
+    assert out.returncode == 0 and "--device" in out.stdout

@@ -1,0 +1,110 @@
+"""Bulk (numpy) decode gives exactly what the streaming parser gives, on any bytes."""
+
+from __future__ import annotations
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from lunad.protocol import CommandReply, Frame, FrameParser, OutputFormat, encode_frame
+from lunad.protocol.bulk import decode_bulk
+from lunad.protocol.commands import (
+    CommandId,
+    encode_reply,
+    get_full_version,
+    set_output_enabled,
+)
+
+
+def assert_same(data: bytes, fmt: OutputFormat = OutputFormat.CM) -> None:
+    parser = FrameParser(fmt)
+    items = parser.feed(data, 0)
+    frames = [f for f in items if isinstance(f, Frame)]
+    replies = [r for r in items if isinstance(r, CommandReply)]
+    got = decode_bulk(data, fmt)
+    assert len(got) == len(frames)
+    assert list(zip(got.dist.tolist(), got.amp.tolist(), got.temp_raw.tolist(), strict=True)) == [
+        (f.dist, f.amp, f.temp_raw) for f in frames
+    ]
+    assert got.fmt.tolist() == [int(f.fmt) for f in frames]
+    assert got.reply_ids.tolist() == [r.cmd_id for r in replies]
+    for off in got.offset.tolist():
+        assert data[off : off + 2] == b"\x59\x59"
+    s = parser.stats
+    assert (got.checksum_errors, got.bytes_discarded, got.buffered, got.reply_bytes) == (
+        s.checksum_errors,
+        s.bytes_discarded,
+        s.buffered,
+        s.reply_bytes,
+    )
+    dm = got.distance_m()
+    for f, d in zip(frames, dm.tolist(), strict=True):
+        assert (f.distance_m is None and d != d) or f.distance_m == d
+
+
+frame = st.builds(
+    encode_frame, st.integers(0, 0xFFFF), st.integers(0, 0xFFFF), st.integers(0, 0xFFFF)
+)
+header_rich = st.lists(st.sampled_from([0x59, 0x5A, 0x00, 0x05, 0x07, 0x01, 0xFF]), max_size=12)
+reply = st.sampled_from(
+    [
+        encode_reply(CommandId.OUTPUT_FORMAT, bytes((OutputFormat.MM,))),
+        encode_reply(CommandId.OUTPUT_FORMAT, bytes((OutputFormat.CM,))),
+        encode_reply(CommandId.GET_VERSION, bytes((9, 0, 3))),
+        encode_reply(CommandId.GET_FULL_VERSION, b"A" * 26),
+        set_output_enabled(True),
+        get_full_version()[:3],  # a cut reply header: 5A 04 14
+    ]
+)
+
+
+@st.composite
+def corrupted(draw: st.DrawFn) -> bytes:
+    f = bytearray(draw(frame))
+    f[draw(st.integers(2, 8))] ^= draw(st.integers(1, 255))
+    return bytes(f)
+
+
+piece = st.one_of(
+    frame,
+    frame,
+    frame,
+    corrupted(),
+    reply,
+    header_rich.map(bytes),
+    st.binary(max_size=10),
+)
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.binary(max_size=400))
+def test_arbitrary_bytes(data: bytes) -> None:
+    assert_same(data)
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.lists(piece, max_size=60).map(b"".join), st.integers(0, 12))
+def test_frame_rich_streams(data: bytes, cut: int) -> None:
+    assert_same(data)
+    assert_same(data[: max(0, len(data) - cut)])  # the end falls anywhere
+    assert_same(data, OutputFormat.MM)
+
+
+def test_empty_and_tiny() -> None:
+    for data in (b"", b"\x59", b"\x59\x59", b"\x5a", b"\x5a\x07", encode_frame(1, 2, 3)[:8]):
+        assert_same(data)
+
+
+def test_clean_stream_is_every_frame() -> None:
+    data = b"".join(encode_frame(k, 2 * k, 3 * k) for k in range(1000))
+    got = decode_bulk(data)
+    assert got.dist.tolist() == list(range(1000))
+    assert got.offset.tolist() == list(range(0, 9000, 9))
+    assert got.bytes_discarded == got.buffered == got.checksum_errors == 0
+
+
+def test_frame_inside_a_long_cut_reply_stays_buffered() -> None:
+    # A GET_FULL_VERSION header (30 bytes long) with only 20 bytes after it: the
+    # parser waits for the rest, so the good frame inside is not returned yet.
+    data = b"\x5a\x1e\x14" + b"\x00" * 4 + encode_frame(5, 6, 7) + b"\x00" * 4
+    assert_same(data)
+    assert len(decode_bulk(data)) == 0
