@@ -20,6 +20,7 @@ SUBCOMMANDS = (
     "lunad.daemon.cmd_watch",
     "lunad.daemon.cmd_demo",
     "lunad.daemon.cmd_record",
+    "lunad.daemon.cmd_calibrate",
     "lunad.daemon.cmd_sweep",
     "lunad.daemon.cmd_eval",
     "lunad.daemon.cmd_bench",

@@ -23,7 +23,7 @@ SIGTERM, as systemd would, and compare frames sent with frames published.
 EPILOG = """\
 examples:
   lunad demo
-  lunad demo --duration 20 --rate 250 --lux 40000 --reflectivity 0.2
+  lunad demo --duration 20 --rate 250 --scenario sun_ramp
 """
 
 
@@ -38,8 +38,12 @@ def add_parser(sub: Any) -> None:
     )
     p.add_argument("--duration", type=float, default=8.0, metavar="S", help="seconds (default 8)")
     p.add_argument("--rate", type=int, default=100, metavar="HZ", help="frame rate (default 100)")
-    p.add_argument("--lux", type=float, default=2000.0, metavar="L", help="ambient light, lux")
-    p.add_argument("--reflectivity", type=float, default=0.6, metavar="R", help="0..1")
+    p.add_argument(
+        "--scenario",
+        default="obstacles",
+        metavar="NAME|FILE",
+        help="what the sensor sees, looped (default: obstacles stepping in and out)",
+    )
     p.add_argument("--every", type=int, default=20, metavar="N", help="print every Nth reading")
     p.set_defaults(func=run)
 
@@ -47,18 +51,33 @@ def add_parser(sub: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the demo; 0 when the daemon published every frame the sensor sent."""
     from lunad.daemon.cmd_watch import watch
-    from lunad.sim.physics import Truth
+    from lunad.sim.physics import RealisticSensor
     from lunad.sim.pty_device import PtyDevice
+    from lunad.sim.scenario import ScenarioError, load_scenario
+
+    try:
+        scenario = load_scenario(args.scenario)
+    except ScenarioError as exc:
+        print(f"lunad demo: --scenario: {exc}", file=sys.stderr)
+        return 2
 
     with tempfile.TemporaryDirectory(prefix="lunad-demo-") as tmp:
         link = Path(tmp) / "tfluna"
         endpoint = f"ipc://{tmp}/lunad.sock"
-        truth = Truth(distance_m=2.0, reflectivity=args.reflectivity, lux=args.lux)
         dev = PtyDevice(
-            truth, rate_hz=args.rate, link=link, seed=1, garbage_rate=0.02, output_enabled=False
+            lambda t: scenario.truth_at(t % scenario.duration_s),
+            model=RealisticSensor(),
+            rate_hz=args.rate,
+            link=link,
+            seed=1,
+            garbage_rate=0.02,
+            output_enabled=False,
         )
         with dev:
-            print(f"virtual TF-Luna on {dev.path} ({args.rate} Hz, 2 % of frames with garbage)")
+            print(
+                f"virtual TF-Luna on {dev.path}: scenario {scenario.name} "
+                f"({scenario.description}), {args.rate} Hz, garbage before 2 % of frames"
+            )
             cmd = [
                 sys.executable,
                 "-m",

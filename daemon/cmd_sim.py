@@ -6,15 +6,21 @@ import argparse
 import signal
 import sys
 import threading
-from typing import Any
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from lunad.sim.physics import Truth
 
 DESCRIPTION = """\
 Play a virtual TF-Luna on a pseudo-terminal, behind a stable symlink that lunad
 serve (or any serial program) opens like a real port. Frames are paced in real
 time; commands (version, frame rate incl. trigger mode, trigger, output on/off,
 cm/mm format, save, restore, reset) are answered as the sensor does. Readings
-follow the paper's model (S = R cos(theta), sigma = sigma0 + k L, D = D_true +
-noise/S) with the sensor's own rules (amp < 100 reports 0, 1 cm steps).
+follow a sensor model: `realistic` (default: amp falls with distance squared,
+datasheet repeatability, ambient light, saturation, rare multipath spikes) or
+`paper` (the paper's equations 1-3 literally). Both apply the sensor's own rules
+(amp < 100 reports 0, 1 cm steps). A scenario makes the truth change over time.
 """
 
 EPILOG = """\
@@ -23,6 +29,12 @@ examples:
   lunad sim --rate 250 --lux 30000 --reflectivity 0.3 --angle 40
   lunad sim --garbage-rate 0.05 --corrupt-rate 0.02   # a dirty line
   lunad sim --link /tmp/tfluna --duration 10 --truth-out truth.csv
+  lunad sim --scenario sun_ramp --truth-out truth.csv   # built-in scenario, then it stops
+  lunad sim --scenario my_test.toml --loop              # your own scenario file, repeated
+  lunad sim --profile paper --lux 2000                  # the paper's equations literally
+
+built-in scenarios: static, approach, obstacles, sun_ramp, incidence_sweep, beyond_range
+(`lunad eval --list` describes them; docs/filter.md shows the file format).
 """
 
 
@@ -38,7 +50,19 @@ def add_parser(sub: Any) -> None:
     p.add_argument(
         "--link", metavar="PATH", help="symlink to the pty (default under $XDG_RUNTIME_DIR)"
     )
-    p.add_argument("--rate", type=int, default=100, metavar="HZ", help="frame rate (default 100)")
+    p.add_argument(
+        "--rate", type=int, metavar="HZ", help="frame rate (default 100, or the scenario's)"
+    )
+    p.add_argument("--profile", choices=("realistic", "paper"), default="realistic")
+    p.add_argument(
+        "--noise-scale",
+        type=float,
+        default=1.0,
+        metavar="X",
+        help="realistic profile: multiply its noise constants (a different sensor)",
+    )
+    p.add_argument("--scenario", metavar="NAME|FILE", help="time-varying truth; stops at its end")
+    p.add_argument("--loop", action="store_true", help="repeat the scenario instead of stopping")
     p.add_argument("--distance", type=float, default=2.0, metavar="M", help="true distance, m")
     p.add_argument("--reflectivity", type=float, default=0.9, metavar="R", help="0..1")
     p.add_argument("--angle", type=float, default=0.0, metavar="DEG", help="incidence angle")
@@ -66,27 +90,50 @@ def add_parser(sub: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Stream until SIGINT/SIGTERM or ``--duration``."""
     from lunad.protocol.commands import FRAME_RATES_HZ
-    from lunad.sim.physics import Truth
-    from lunad.sim.pty_device import PtyDevice
+    from lunad.sim.physics import PaperSensor, RealisticSensor, Truth
+    from lunad.sim.pty_device import TRUTH_OUT_HEADER, PtyDevice
 
-    if args.rate not in FRAME_RATES_HZ:
-        print(f"lunad sim: --rate must be 0 or 500/n Hz (1..250), got {args.rate}", file=sys.stderr)
+    scenario = None
+    if args.scenario:
+        from lunad.sim.scenario import ScenarioError, load_scenario
+
+        try:
+            scenario = load_scenario(args.scenario)
+        except ScenarioError as exc:
+            print(f"lunad sim: --scenario: {exc}", file=sys.stderr)
+            return 2
+    rate = args.rate if args.rate is not None else round(scenario.rate_hz) if scenario else 100
+    if rate not in FRAME_RATES_HZ:
+        print(f"lunad sim: --rate must be 0 or 500/n Hz (1..250), got {rate}", file=sys.stderr)
         return 2
     for name in ("garbage_rate", "corrupt_rate"):
         if not 0.0 <= getattr(args, name) <= 1.0:
             print(f"lunad sim: --{name.replace('_', '-')} must be in 0..1", file=sys.stderr)
             return 2
-    truth = Truth(args.distance, args.reflectivity, args.angle, args.lux)
+    if args.noise_scale <= 0:
+        print("lunad sim: --noise-scale must be positive", file=sys.stderr)
+        return 2
+    model = RealisticSensor(args.noise_scale) if args.profile == "realistic" else PaperSensor()
+    truth: Truth | Callable[[float], Truth]
+    duration = args.duration
+    if scenario is not None:
+        length = scenario.duration_s
+        truth = (lambda t: scenario.truth_at(t % length)) if args.loop else scenario.truth_at
+        if duration is None and not args.loop:
+            duration = length
+    else:
+        truth = Truth(args.distance, args.reflectivity, args.angle, args.lux)
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: done.set())
     out = open(args.truth_out, "w", encoding="utf-8") if args.truth_out else None
     try:
         if out is not None:
-            out.write("t_s,good,distance_m,reflectivity,angle_deg,lux,dist_cm,amp\n")
+            out.write(TRUTH_OUT_HEADER + "\n")
         dev = PtyDevice(
             truth,
-            rate_hz=args.rate,
+            model=model,
+            rate_hz=rate,
             link=args.link,
             seed=args.seed,
             garbage_rate=args.garbage_rate,
@@ -95,11 +142,12 @@ def run(args: argparse.Namespace) -> int:
         )
         with dev:
             print(
-                f"virtual TF-Luna on {dev.path} -> {dev.slave_name}, {args.rate} Hz; "
+                f"virtual TF-Luna on {dev.path} -> {dev.slave_name}, {rate} Hz, "
+                f"{args.profile} profile{f', scenario {scenario.name}' if scenario else ''}; "
                 "Ctrl-C to stop",
                 flush=True,
             )
-            done.wait(args.duration)
+            done.wait(duration)
         print(
             f"sent {dev.frames_sent} good frames, {dev.frames_corrupted} corrupted, "
             f"{dev.garbage_bytes} garbage bytes, {dev.frames_unread} dropped unread, "

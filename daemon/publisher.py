@@ -134,6 +134,7 @@ class Publisher:
         """Stop the waker, close the socket and its context; safe to call twice."""
         if self._waker is not None:
             os.write(self._waker_stop_w, b"x")
+            self._pumped.set()  # release a waker waiting for the loop's handshake
             self._waker.join(timeout=2.0)
             self._waker = None
         for fd in (self._waker_stop_r, self._waker_stop_w):

@@ -65,6 +65,8 @@ class FilterConfig:
             a real step: the track restarts there.
         lux_tau_s: time constant of the lux estimator, seconds (converges within
             about 4 tau).
+        lux_zone_tau_s: time constant of the slower lux average that the zone and
+            ``high_ambient`` use, seconds (they describe conditions, not frames).
         lux_clip_sigmas: residuals beyond this many predicted sigmas are clipped
             before they enter the lux estimator (robustness to spikes).
         lux_init: ambient light assumed when a track starts, lux.
@@ -100,6 +102,7 @@ class FilterConfig:
     gate_sigmas: float = 4.0
     step_confirm: int = 2
     lux_tau_s: float = 0.1
+    lux_zone_tau_s: float = 1.0
     lux_clip_sigmas: float = 2.5
     lux_init: float = 0.0
     sigma_floor_m: float = 0.002

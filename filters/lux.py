@@ -47,22 +47,35 @@ def clipped_square_mean(clip_sigmas: float) -> float:
 class LuxEstimator:
     """Tracks c = sigma0 + k L from innovations; reports L_hat in lux."""
 
-    __slots__ = ("_c2_floor", "_c2_init", "_clip2", "_inv_kappa", "_k", "_sigma0", "_tau_s", "c2")
+    __slots__ = (
+        "_c2_floor",
+        "_c2_init",
+        "_clip2",
+        "_inv_kappa",
+        "_k",
+        "_sigma0",
+        "_tau_s",
+        "_tau_zone_s",
+        "c2",
+        "c2_zone",
+    )
 
     def __init__(self, config: FilterConfig) -> None:
         self._sigma0 = config.sigma0_m
         self._k = config.k_m_per_lux
         self._tau_s = config.lux_tau_s
+        self._tau_zone_s = config.lux_zone_tau_s
         self._clip2 = config.lux_clip_sigmas * config.lux_clip_sigmas
         self._inv_kappa = 1.0 / clipped_square_mean(config.lux_clip_sigmas)
         c_init = config.sigma0_m + config.k_m_per_lux * config.lux_init
         self._c2_init = c_init * c_init
         self._c2_floor = _C2_FLOOR_FRACTION * config.sigma0_m * config.sigma0_m
         self.c2 = self._c2_init
+        self.c2_zone = self._c2_init
 
     def reset(self) -> None:
         """Back to the configured initial light level."""
-        self.c2 = self._c2_init
+        self.c2 = self.c2_zone = self._c2_init
 
     @property
     def c_m(self) -> float:
@@ -71,8 +84,19 @@ class LuxEstimator:
 
     @property
     def lux(self) -> float:
-        """Estimated ambient light, lux, clipped at 0."""
+        """Estimated ambient light, lux, clipped at 0 (time constant ``lux_tau_s``).
+
+        On a strong return (S near 1) ambient light adds little to the noise, so this
+        spreads by several klux from frame to frame even indoors; see ``lux_zone``.
+        """
         lux = (math.sqrt(self.c2) - self._sigma0) / self._k
+        return lux if lux > 0.0 else 0.0
+
+    @property
+    def lux_zone(self) -> float:
+        """The same estimate averaged over ``lux_zone_tau_s``, lux: what the zone and
+        the ``high_ambient`` decision use, so that they do not flap on sampling noise."""
+        lux = (math.sqrt(self.c2_zone) - self._sigma0) / self._k
         return lux if lux > 0.0 else 0.0
 
     def update(self, innov_m: float, p_pred_m2: float, s: float, q_m2: float, dt_s: float) -> None:
@@ -99,3 +123,6 @@ class LuxEstimator:
             a = 0.5
         c2 = self.c2 + a * (sample - self.c2)
         self.c2 = c2 if c2 > self._c2_floor else self._c2_floor
+        a = dt_s / self._tau_zone_s
+        c2 = self.c2_zone + (a if a < 0.5 else 0.5) * (sample - self.c2_zone)
+        self.c2_zone = c2 if c2 > self._c2_floor else self._c2_floor

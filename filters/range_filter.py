@@ -134,8 +134,9 @@ class RangeFilter:
         sigma = math.sqrt(tr.p00)
         if sigma < self._floor:
             sigma = self._floor
-        ambient = pol.high_ambient(lux) if lux is not None else False
-        zone = self.zones.classify(lux if lux is not None else 0.0, s, sigma)
+        lux_zone = self.lux.lux_zone if lux is not None else 0.0
+        ambient = pol.high_ambient(lux_zone) if lux is not None else False
+        zone = self.zones.classify(lux_zone, s, sigma)
         if outlier:
             return Estimate(
                 tr.x,

@@ -31,8 +31,12 @@ from typing import Protocol, TextIO
 from lunad.protocol.commands import split_commands
 from lunad.protocol.frame import temp_raw_from_c
 from lunad.sim.physics import PaperSensor, RawReading, Truth
+from lunad.sim.scenario import TRUTH_CSV_HEADER, truth_csv_row
 from lunad.sim.virtual_sensor import Settings, VirtualSensor
 
+TRUTH_OUT_HEADER = TRUTH_CSV_HEADER + ",good,dist_cm,amp"
+"""Columns of ``truth_out``: the truth, whether the frame's checksum was left good,
+and the reading the sensor reported (centimetres, amp)."""
 OUT_BUFFER_MAX = 4096  # bytes held for a host that does not read (about 450 frames)
 DEFAULT_TEMP_C = 40.0
 
@@ -63,7 +67,7 @@ class PtyDevice:
         temp_c: chip temperature reported, degrees Celsius.
         garbage_rate: chance per frame of a burst of 1-16 random bytes before it.
         corrupt_rate: chance per frame of a wrong checksum.
-        truth_out: text file that gets one CSV row of truth and reading per frame.
+        truth_out: text file that gets one CSV row per frame (``TRUTH_OUT_HEADER``).
         output_enabled: start with the output on; off makes the sensor wait for the
             host's ``output on`` command, so every frame sent finds a reader.
         on_frame_sent: called from the device thread with (the frame's index among
@@ -265,8 +269,7 @@ class PtyDevice:
             self._frame_ends.append(len(self._out))
         if self.truth_out is not None:
             self.truth_out.write(
-                f"{t:.6f},{int(good)},{truth.distance_m:.4f},{truth.reflectivity:.3f},"
-                f"{truth.angle_deg:.2f},{truth.lux:.1f},{reading.dist_cm},{reading.amp}\n"
+                f"{truth_csv_row(t, truth)},{int(good)},{reading.dist_cm},{reading.amp}\n"
             )
 
     def _read_commands(self, master: int, inbuf: bytearray) -> None:

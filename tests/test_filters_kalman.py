@@ -42,14 +42,17 @@ def run_cv(seed: int, speed: float, sigma: float, n: int = 1500) -> float:
     return sum(nees) / len(nees)
 
 
-@settings(max_examples=20, deadline=None)
+@settings(max_examples=20, deadline=None, derandomize=True)
 @given(
     st.integers(min_value=0, max_value=10_000),
     st.floats(min_value=-1.0, max_value=1.0),
     st.floats(min_value=0.003, max_value=0.1),
 )
 def test_filter_is_consistent_on_constant_velocity(seed: int, speed: float, sigma: float) -> None:
-    nees = run_cv(seed, speed, sigma)
+    """Mean NEES near 1. Consecutive NEES values are strongly correlated, so one run has
+    few independent samples: average four runs, and derandomize so the band is a fixed,
+    reproducible check rather than a search for the one seed in a thousand outside it."""
+    nees = sum(run_cv(seed * 4 + i, speed, sigma) for i in range(4)) / 4
     assert 0.5 < nees < 1.6, nees
 
 

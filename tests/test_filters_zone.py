@@ -34,3 +34,27 @@ def test_leaving_unreliable_needs_margin() -> None:
     assert z.classify(500.0, 0.11, 0.004) is Zone.UNRELIABLE
     assert z.classify(500.0, 0.13, 0.004) is Zone.MARGINAL
     assert z.dropout() is Zone.UNRELIABLE
+
+
+def test_zone_does_not_flap_on_a_static_indoor_scene() -> None:
+    """Regression (seen in `lunad demo`): on a strong return indoors the fast lux estimate
+    spreads by klux from frame to frame; the zone uses the slower average and holds."""
+    import itertools
+    import random
+
+    from lunad.filters import RangeFilter
+    from lunad.sim.physics import RealisticSensor, Truth
+
+    f = RangeFilter()
+    model = RealisticSensor()
+    rng = random.Random(5)
+    truth = Truth(distance_m=1.21, reflectivity=0.8, angle_deg=0.0, lux=300.0)
+    zones = []
+    for k in range(2000):  # 20 s at 100 Hz
+        r = model.sample(truth, rng)
+        est = f.step(r.dist_cm / 100 if r.dist_cm else None, r.amp, k * 10_000_000)
+        if k >= 200:
+            zones.append(est.zone)
+    changes = sum(a != b for a, b in itertools.pairwise(zones))
+    assert changes <= 2, changes
+    assert zones.count("stable") > 0.95 * len(zones)
