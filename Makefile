@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 PREFIX ?= /opt/lunad
 
-.PHONY: demo test lint bench clean install uninstall
+.PHONY: demo test lint clean install uninstall
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -19,7 +19,7 @@ $(STAMP): pyproject.toml | $(PY)
 demo: $(STAMP)
 	$(VENV)/bin/lunad demo
 
-## test: lint and the default test run (benchmarks and soak are opt-in)
+## test: lint and the default tests, incl. a 60 s soak (bench and long soaks are opt-in)
 test: $(STAMP)
 	$(VENV)/bin/ruff check protocol filters sim daemon tests
 	$(VENV)/bin/python -m pytest

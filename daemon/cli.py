@@ -24,6 +24,7 @@ SUBCOMMANDS = (
     "lunad.daemon.cmd_sweep",
     "lunad.daemon.cmd_eval",
     "lunad.daemon.cmd_bench",
+    "lunad.daemon.cmd_soak",
 )
 
 EPILOG = """\

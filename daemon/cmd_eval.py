@@ -85,13 +85,9 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
         metavar="SECONDS",
         help="cut (or hold) every scenario to this length",
     )
-    p.add_argument(
-        "--format", choices=("table", "json"), default="table", help="output format"
-    )
+    p.add_argument("--format", choices=("table", "json"), default="table", help="output format")
     p.add_argument("--list", action="store_true", help="list the built-in scenarios and exit")
-    p.add_argument(
-        "--check", action="store_true", help="exit 1 when lunad misses a target"
-    )
+    p.add_argument("--check", action="store_true", help="exit 1 when lunad misses a target")
     p.set_defaults(func=run)
     return p
 

@@ -57,18 +57,43 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--profile", choices=("paper", "calibrated", "both"), default="both",
-                   help="which profile(s) to run (default: both)")
-    p.add_argument("--format", choices=("table", "json"), default="table", dest="fmt",
-                   help="output format (default: table)")
-    p.add_argument("--readings", type=_positive_int, default=1000, metavar="N",
-                   help="readings per cell (default: 1000, as in the paper)")
-    p.add_argument("--seed", type=int, default=DEFAULT_SEED,
-                   help=f"seed of the random generator (default: {DEFAULT_SEED})")
-    p.add_argument("--fit", action="store_true",
-                   help="refit the calibrated profile to Table I and print its parameters")
-    p.add_argument("--plot", type=Path, metavar="DIR",
-                   help="write Fig. 2 and Fig. 3 style PNGs into DIR (needs matplotlib)")
+    p.add_argument(
+        "--profile",
+        choices=("paper", "calibrated", "both"),
+        default="both",
+        help="which profile(s) to run (default: both)",
+    )
+    p.add_argument(
+        "--format",
+        choices=("table", "json"),
+        default="table",
+        dest="fmt",
+        help="output format (default: table)",
+    )
+    p.add_argument(
+        "--readings",
+        type=_positive_int,
+        default=1000,
+        metavar="N",
+        help="readings per cell (default: 1000, as in the paper)",
+    )
+    p.add_argument(
+        "--seed",
+        type=int,
+        default=DEFAULT_SEED,
+        help=f"seed of the random generator (default: {DEFAULT_SEED})",
+    )
+    p.add_argument(
+        "--fit",
+        action="store_true",
+        help="refit the calibrated profile to Table I and print its parameters",
+    )
+    p.add_argument(
+        "--plot",
+        type=Path,
+        metavar="DIR",
+        help="write Fig. 2 and Fig. 3 style PNGs into DIR (needs matplotlib)",
+    )
     p.set_defaults(func=run)
 
 
@@ -84,8 +109,10 @@ def _run_fit() -> int:
     from lunad.sim.fit import fit, format_profile
 
     result = fit()
-    print(f"fit: objective {result.objective:.4g}, {result.evaluations} evaluations,"
-          f" {result.seconds:.1f} s")
+    print(
+        f"fit: objective {result.objective:.4g}, {result.evaluations} evaluations,"
+        f" {result.seconds:.1f} s"
+    )
     print(format_profile(result.profile))
     print("To make these the default, replace CALIBRATED_DEFAULT in sim/paper_model.py.\n")
     print("Table I from the fitted profile's exact expectation:")
@@ -125,8 +152,11 @@ def run(args: argparse.Namespace) -> int:
         except ModuleNotFoundError as exc:
             if exc.name != "matplotlib" and not str(exc.name).startswith("matplotlib"):
                 raise
-            print("lunad sweep: --plot needs matplotlib; install the extra:"
-                  " pip install 'lunad[plot]'", file=sys.stderr)
+            print(
+                "lunad sweep: --plot needs matplotlib; install the extra:"
+                " pip install 'lunad[plot]'",
+                file=sys.stderr,
+            )
             return 1
         except OSError as exc:
             print(f"lunad sweep: cannot write plots to {args.plot}: {exc}", file=sys.stderr)

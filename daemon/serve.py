@@ -50,6 +50,7 @@ from lunad.protocol.parser import FrameParser
 log = logging.getLogger("lunad.serve")
 
 WAITING_AFTER_S = 1.0  # no bytes for this long: state waiting (the contract says within 2 s)
+WAITING_PERIODS = 1.5  # ... or this many frame periods, whichever is longer (1 Hz: 1.5 s)
 VERSION_TIMEOUT_S = 1.0  # a sensor that has not answered the version query by then is warned of
 BACKOFF_FIRST_S = 0.1
 BACKOFF_MAX_S = 2.0
@@ -91,11 +92,17 @@ class Daemon:
         self.recorder: Recorder | None = None
         self.seq = -1
         self._reasons_json: dict[tuple[str, ...], str] = {}
+        self.filter = RangeFilter(cfg.filter.to_filter_config())
         self._apply(cfg)
 
     def _apply(self, cfg: Config) -> None:
+        """Take ``cfg`` into use; the filter keeps its state unless [filter] changed."""
+        if cfg.filter != self.cfg.filter:
+            self.filter = RangeFilter(cfg.filter.to_filter_config())
         self.cfg = cfg
-        self.filter = RangeFilter(cfg.filter.to_filter_config())
+        self._waiting_after_ns = int(
+            max(WAITING_AFTER_S, WAITING_PERIODS / cfg.sensor.frame_rate_hz) * NS
+        )
         self._sensor_json = json.dumps(cfg.sensor.name)
         self._range_topic = topic("range", cfg.sensor.name)
         self._health_topic = topic("health", cfg.sensor.name)
@@ -327,8 +334,10 @@ class Daemon:
             if health.state is not State.CONNECTED:
                 log.info("data arriving from %s", self._source_desc())
                 self._set_state(State.CONNECTED, now)
-        elif health.state is State.CONNECTED and now - self._last_bytes > WAITING_AFTER_S * NS:
-            log.warning("no data from %s for %.1f s", self._source_desc(), WAITING_AFTER_S)
+        elif health.state is State.CONNECTED and now - self._last_bytes > self._waiting_after_ns:
+            log.warning(
+                "no data from %s for %.1f s", self._source_desc(), self._waiting_after_ns / NS
+            )
             self._set_state(State.WAITING, now)
         if self._version_deadline is not None:
             if health.firmware is not None:

@@ -107,8 +107,10 @@ class Tracker:
         if e * e > self._gate2 * s:
             sign = e > 0.0
             d = z_m - self._run_last
-            if self._run_n and sign == self._run_sign and d * d <= self._gate2 * (
-                r_m2 + self._run_r
+            if (
+                self._run_n
+                and sign == self._run_sign
+                and d * d <= self._gate2 * (r_m2 + self._run_r)
             ):
                 self._run_n += 1
                 self._run_sum += z_m

@@ -150,4 +150,3 @@ class RangeFilter:
         if ambient:
             return Estimate(tr.x, sigma, lux, s, Status.DEGRADED, _AMBIENT, zone)
         return Estimate(tr.x, sigma, lux, s, Status.OK, _NONE, zone)
-

@@ -79,9 +79,7 @@ class ZoneClassifier:
             )
             zone = Zone.STABLE if stable else Zone.MARGINAL
         else:
-            stable = (
-                lux < self._lux_stable and s >= self._s_stable and sigma_m <= self._sig_stable
-            )
+            stable = lux < self._lux_stable and s >= self._s_stable and sigma_m <= self._sig_stable
             zone = Zone.STABLE if stable else Zone.MARGINAL
         self.zone = zone
         return zone

@@ -286,9 +286,7 @@ def evaluate_run(
 ) -> ScenarioResult:
     """Feed one run to every method and score them against the truth."""
     methods = make_methods(config)
-    out: dict[str, tuple[list[float | None], list[float | None]]] = {
-        k: ([], []) for k in methods
-    }
+    out: dict[str, tuple[list[float | None], list[float | None]]] = {k: ([], []) for k in methods}
     calls = [(m, out[k][0].append, out[k][1].append) for k, m in methods.items()]
     for raw_m, amp, t_ns, rd in zip(run.raw_m, run.amp, run.t_ns, run.readings, strict=True):
         for method, put_est, put_sig in calls:
@@ -297,9 +295,7 @@ def evaluate_run(
             put_sig(s)
     steps = scenario.step_frames()
     settle = max(STEP_GRACE_FRAMES, round(STEP_SETTLE_S * scenario.rate_hz))
-    results = tuple(
-        _metrics(k, out[k][0], out[k][1], run.truth_m, steps, settle) for k in methods
-    )
+    results = tuple(_metrics(k, out[k][0], out[k][1], run.truth_m, steps, settle) for k in methods)
     return ScenarioResult(scenario.name, len(run.truth_m), scenario.rate_hz, len(steps), results)
 
 

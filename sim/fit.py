@@ -36,13 +36,20 @@ EXPONENT_BOUNDS = (0.05, 10.0)  # keeps the alpha*p and m*p trade-offs from runn
 S0_MIN = 1e-6
 _EXPONENTS = frozenset({"alpha_r", "m_r", "p", "alpha_d", "m_d", "q"})
 
-PARAM_NAMES: tuple[str, ...] = tuple(
-    f.name for f in fields(CalibratedProfile) if f.name != "name"
-)
+PARAM_NAMES: tuple[str, ...] = tuple(f.name for f in fields(CalibratedProfile) if f.name != "name")
 
 START = CalibratedProfile(
-    sigma0_cm=0.1, k_cm_per_klux=0.006, alpha_r=9.0, m_r=9.0, s0=1e-4, p=0.25,
-    alpha_d=0.4, m_d=0.62, threshold_10klux=0.136, q=0.3, tau=0.8,
+    sigma0_cm=0.1,
+    k_cm_per_klux=0.006,
+    alpha_r=9.0,
+    m_r=9.0,
+    s0=1e-4,
+    p=0.25,
+    alpha_d=0.4,
+    m_d=0.62,
+    threshold_10klux=0.136,
+    q=0.3,
+    tau=0.8,
 )
 """Deterministic first start (found by an earlier exploratory run of this same fit)."""
 
@@ -73,25 +80,39 @@ def _slice(label: str, lux: Interval, r: Interval, theta: Interval) -> Table1Row
 CLAIMS: tuple[Claim, ...] = (
     Claim(
         "stable region (abstract, V): lux < 10 klux, R > 0.5, angle < 45 deg: sub-cm",
-        _slice("stable", Interval(0, 10000, hi_open=True), Interval(0.5, 0.9, lo_open=True),
-               Interval(0, 45, hi_open=True)),
-        max_error_cm=1.0, min_error_cm=0.5, max_failure_pct=1.0,
+        _slice(
+            "stable",
+            Interval(0, 10000, hi_open=True),
+            Interval(0.5, 0.9, lo_open=True),
+            Interval(0, 45, hi_open=True),
+        ),
+        max_error_cm=1.0,
+        min_error_cm=0.5,
+        max_failure_pct=1.0,
     ),
     Claim(
         "R = 0.9 stays accurate up to 70 klux (IV.A): R 0.9, 70 klux, angle < 45 deg",
-        _slice("white at 70 klux", Interval(70000, 70000), Interval(0.9, 0.9),
-               Interval(0, 45, hi_open=True)),
-        max_error_cm=2.0, max_failure_pct=2.0,
+        _slice(
+            "white at 70 klux",
+            Interval(70000, 70000),
+            Interval(0.9, 0.9),
+            Interval(0, 45, hi_open=True),
+        ),
+        max_error_cm=2.0,
+        max_failure_pct=2.0,
     ),
     Claim(
         "below 5000 lux: about 1.5 cm and no dropouts (V)",
-        _slice("low light", Interval(0, 5000, hi_open=True), Interval(0.1, 0.9),
-               Interval(0, 85)),
-        max_error_cm=1.5 * (1 + ERROR_TOLERANCE_REL), max_failure_pct=0.5,
+        _slice("low light", Interval(0, 5000, hi_open=True), Interval(0.1, 0.9), Interval(0, 85)),
+        max_error_cm=1.5 * (1 + ERROR_TOLERANCE_REL),
+        max_failure_pct=0.5,
     ),
     Claim(
         "worst case (Table I): L > 50 klux, R 0.1, angle > 75 deg: > 9 cm, > 35 %",
-        WORST_CASE_ROW, min_error_cm=9.0, min_failure_pct=35.0, max_failure_pct=95.0,
+        WORST_CASE_ROW,
+        min_error_cm=9.0,
+        min_failure_pct=35.0,
+        max_failure_pct=95.0,
     ),
 )
 """The text's claims the fit must respect (the sensor's 1 cm resolution sets the 0.5 cm floor)."""
@@ -124,8 +145,9 @@ class _Objective:
 
     def __init__(self, grid: SweepGrid) -> None:
         self.lux, self.r, self.theta = grid.mesh()
-        self.rows = np.array([row_mask(r, self.lux, self.r, self.theta) for r in FIT_ROWS],
-                             dtype=float)
+        self.rows = np.array(
+            [row_mask(r, self.lux, self.r, self.theta) for r in FIT_ROWS], dtype=float
+        )
         self.claims = np.array(
             [row_mask(c.row, self.lux, self.r, self.theta) for c in CLAIMS], dtype=float
         )
@@ -164,8 +186,9 @@ def _claim_penalty(err: FloatArray, fail: FloatArray) -> float:
     total = 0.0
     for claim, e, f in zip(CLAIMS, err, fail, strict=True):
         total += _hinge(float(e), claim.min_error_cm, claim.max_error_cm, 1.0)
-        total += _hinge(float(f), claim.min_failure_pct, claim.max_failure_pct,
-                        FAILURE_TOLERANCE_PTS)
+        total += _hinge(
+            float(f), claim.min_failure_pct, claim.max_failure_pct, FAILURE_TOLERANCE_PTS
+        )
     return total
 
 
@@ -236,9 +259,7 @@ def _restarted(f: Callable[[FloatArray], float], x0: FloatArray) -> tuple[FloatA
     return x, fx
 
 
-def check_claims(
-    profile: CalibratedProfile, grid: SweepGrid = PAPER_GRID
-) -> list[ClaimCheck]:
+def check_claims(profile: CalibratedProfile, grid: SweepGrid = PAPER_GRID) -> list[ClaimCheck]:
     """Evaluate ``CLAIMS`` for a profile from the exact expectation."""
     lux, r, t = grid.mesh()
     stats = expected_cells(profile, lux, r, t)
@@ -276,8 +297,14 @@ def fit(
             best_x, best_f = x, fx
     profile = replace(to_profile(best_x))
     rows = expected_sweep(profile, grid)
-    return FitResult(profile, best_f, rows, check_claims(profile, grid),
-                     objective.evaluations, time.perf_counter() - t0)
+    return FitResult(
+        profile,
+        best_f,
+        rows,
+        check_claims(profile, grid),
+        objective.evaluations,
+        time.perf_counter() - t0,
+    )
 
 
 def format_profile(profile: CalibratedProfile) -> str:

@@ -252,9 +252,10 @@ def norm_cdf(x: ArrayLike) -> FloatArray:
     z = np.asarray(x, dtype=float) / math.sqrt(2.0)
     a = np.abs(z)
     t = 1.0 / (1.0 + 0.3275911 * np.where(np.isfinite(a), a, 0.0))
-    poly = t * (0.254829592 + t * (-0.284496736 + t * (1.421413741 + t * (
-        -1.453152027 + t * 1.061405429))))
-    erfc_a = np.where(np.isfinite(a), poly * np.exp(-np.where(np.isfinite(a), a, 0.0) ** 2), 0.0)
+    poly = t * (
+        0.254829592 + t * (-0.284496736 + t * (1.421413741 + t * (-1.453152027 + t * 1.061405429)))
+    )
+    erfc_a = np.where(np.isfinite(a), poly * np.exp(-(np.where(np.isfinite(a), a, 0.0) ** 2)), 0.0)
     return np.where(z >= 0, 1.0 - 0.5 * erfc_a, 0.5 * erfc_a)
 
 
@@ -282,12 +283,8 @@ def expected_cells(
     finite = np.isfinite(sd) & (sd > 0)
     s = np.where(finite, sd, 1.0)
     p_gate = np.where(finite, norm_cdf(hi / s) - norm_cdf(lo / s), 0.0)
-    e_abs = np.where(
-        finite, s * (2.0 * _PHI0 - _norm_pdf(lo / s) - _norm_pdf(hi / s)), 0.0
-    )
-    return CellStats(
-        abs_error_sum_cm=det * e_abs * CM_PER_M, valid=det * p_gate, readings=1
-    )
+    e_abs = np.where(finite, s * (2.0 * _PHI0 - _norm_pdf(lo / s) - _norm_pdf(hi / s)), 0.0)
+    return CellStats(abs_error_sum_cm=det * e_abs * CM_PER_M, valid=det * p_gate, readings=1)
 
 
 def simulate_cells(

@@ -73,6 +73,9 @@ class PtyDevice:
         on_frame_sent: called from the device thread with (the frame's index among
             good frames sent, ``time.monotonic_ns()``) once its last byte is written;
             benchmarks measure latency from it.
+        on_bytes_written: called from the device thread with (the bytes of one write
+            to the pty, the end offsets within them of the good frames it completed,
+            ``time.monotonic_ns()``); the soak's reference parser reads every byte.
 
     Use as a context manager: ``with PtyDevice(...) as dev: serve(dev.path)``.
     """
@@ -90,6 +93,7 @@ class PtyDevice:
         truth_out: TextIO | None = None,
         output_enabled: bool = True,
         on_frame_sent: Callable[[int, int], None] | None = None,
+        on_bytes_written: Callable[[bytes, list[int], int], None] | None = None,
     ) -> None:
         fixed = truth if isinstance(truth, Truth) else Truth()
         self._truth: Callable[[float], Truth] = truth if callable(truth) else (lambda _t: fixed)
@@ -102,6 +106,7 @@ class PtyDevice:
         self.corrupt_rate = corrupt_rate
         self.truth_out = truth_out
         self.on_frame_sent = on_frame_sent
+        self.on_bytes_written = on_bytes_written
         self.frames_sent = 0
         self.frames_corrupted = 0
         self.frames_unread = 0
@@ -296,10 +301,12 @@ class PtyDevice:
             if exc.errno in (errno.EIO, errno.EBADF):
                 return
             raise
-        del self._out[:n]
         ends = self._frame_ends
         hook = self.on_frame_sent
-        t_ns = time.monotonic_ns() if hook is not None else 0
+        t_ns = time.monotonic_ns() if hook or self.on_bytes_written else 0
+        if self.on_bytes_written is not None:
+            self.on_bytes_written(bytes(self._out[:n]), [e for e in ends if e <= n], t_ns)
+        del self._out[:n]
         while ends and ends[0] <= n:
             ends.popleft()
             if hook is not None:

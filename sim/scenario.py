@@ -273,7 +273,7 @@ def parse_scenario(text: str, name: str = "scenario", source: str = "<string>") 
         for key in named:
             v = _field_value(where, key, entry[key])
             if interp == "linear" and t == points[key][-1][0] and t > 0:
-                raise ScenarioError(f"{where}: {key} ramps in zero time; use interp = \"hold\"")
+                raise ScenarioError(f'{where}: {key} ramps in zero time; use interp = "hold"')
             points[key].append((t, v, interp == "linear"))
         last_t = max(last_t, t)
 

@@ -44,7 +44,9 @@ class SweepGrid:
     def mesh(self) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Flattened (lux, R, theta) arrays, one entry per cell, lux varying slowest."""
         lux, r, t = np.meshgrid(
-            np.array(self.lux), np.array(self.reflectivity), np.array(self.theta_deg),
+            np.array(self.lux),
+            np.array(self.reflectivity),
+            np.array(self.theta_deg),
             indexing="ij",
         )
         return lux.ravel(), r.ravel(), t.ravel()
@@ -157,8 +159,18 @@ def table1_results(
     out = []
     for row in rows:
         err, fail = pool(stats, row_mask(row, lux, r, t))
-        out.append(RowResult(profile_name, row.condition, row.group, err, fail,
-                             row.mean_error_cm, row.failure_rate_pct, row.lower_bound))
+        out.append(
+            RowResult(
+                profile_name,
+                row.condition,
+                row.group,
+                err,
+                fail,
+                row.mean_error_cm,
+                row.failure_rate_pct,
+                row.lower_bound,
+            )
+        )
     return out
 
 
@@ -185,8 +197,9 @@ def worst_deviation(results: Sequence[RowResult]) -> Worst:
     two_sided = [r for r in results if not r.lower_bound] or list(results)
     by_err = max(two_sided, key=lambda x: abs(x.error_deviation))
     by_fail = max(two_sided, key=lambda x: abs(x.failure_deviation_pts))
-    return Worst(by_err.error_deviation, by_err.condition,
-                 by_fail.failure_deviation_pts, by_fail.condition)
+    return Worst(
+        by_err.error_deviation, by_err.condition, by_fail.failure_deviation_pts, by_fail.condition
+    )
 
 
 def _num(x: float, fmt: str) -> str:
@@ -200,8 +213,10 @@ def format_table(results: Sequence[RowResult]) -> str:
     for name in profiles:
         rows = [r for r in results if r.profile == name]
         lines.append(f"profile: {name}")
-        lines.append(f"  {'condition':36s} {'paper cm':>9s} {'model cm':>9s} {'dev':>7s}"
-                     f" {'paper %':>8s} {'model %':>8s} {'dev pts':>8s}")
+        lines.append(
+            f"  {'condition':36s} {'paper cm':>9s} {'model cm':>9s} {'dev':>7s}"
+            f" {'paper %':>8s} {'model %':>8s} {'dev pts':>8s}"
+        )
         for r in rows:
             gt = ">" if r.lower_bound else " "
             dev = r.error_deviation
@@ -214,8 +229,9 @@ def format_table(results: Sequence[RowResult]) -> str:
         w = worst_deviation(rows)
         err_s = "none valid" if math.isinf(w.error_rel) else f"{100 * w.error_rel:+.0f}%"
         lines.append(f"  worst mean-error deviation: {err_s} ({w.error_condition})")
-        lines.append(f"  worst failure-rate deviation: {w.failure_pts:+.1f} points"
-                     f" ({w.failure_condition})")
+        lines.append(
+            f"  worst failure-rate deviation: {w.failure_pts:+.1f} points ({w.failure_condition})"
+        )
         lines.append("")
     return "\n".join(lines).rstrip() + "\n"
 
@@ -249,8 +265,11 @@ def write_plots(
     written: list[Path] = []
     for profile in profiles:
         for fig_no, (xs, xlabel, other) in enumerate(
-            ((PLOT_LUX, "illumination (lux)", PAPER_GRID.theta_deg),
-             (PAPER_GRID.theta_deg, "incidence angle (deg)", PAPER_GRID.lux)), start=2
+            (
+                (PLOT_LUX, "illumination (lux)", PAPER_GRID.theta_deg),
+                (PAPER_GRID.theta_deg, "incidence angle (deg)", PAPER_GRID.lux),
+            ),
+            start=2,
         ):
             fig, (ax_e, ax_f) = plt.subplots(2, 1, sharex=True, figsize=(7, 7))
             for r_val in PLOT_R:
@@ -259,8 +278,7 @@ def write_plots(
                 else:
                     grid = SweepGrid(other, (r_val,), xs)
                 lux, r, t = grid.mesh()
-                stats = simulate_cells(profile, lux, r, t, readings,
-                                       np.random.default_rng(seed))
+                stats = simulate_cells(profile, lux, r, t, readings, np.random.default_rng(seed))
                 shape = (len(grid.lux), len(grid.theta_deg))
                 err = stats.abs_error_sum_cm.reshape(shape)
                 val = stats.valid.reshape(shape)

@@ -76,30 +76,68 @@ def _r(value: float) -> Interval:
 
 
 TABLE1_ROWS: tuple[Table1Row, ...] = (
-    Table1Row("illumination", "0-5000 lux (low)", Interval(0, 5000, hi_open=True),
-              ALL_R, ALL_THETA, 1.5, 0.0),
-    Table1Row("illumination", "5000-20000 lux (moderate)", Interval(5000, 20000, hi_open=True),
-              ALL_R, ALL_THETA, 3.2, 5.0),
+    Table1Row(
+        "illumination",
+        "0-5000 lux (low)",
+        Interval(0, 5000, hi_open=True),
+        ALL_R,
+        ALL_THETA,
+        1.5,
+        0.0,
+    ),
+    Table1Row(
+        "illumination",
+        "5000-20000 lux (moderate)",
+        Interval(5000, 20000, hi_open=True),
+        ALL_R,
+        ALL_THETA,
+        3.2,
+        5.0,
+    ),
     # ">20000 (high)" read as 20-50 klux so that it does not overlap ">50000 (extreme)".
-    Table1Row("illumination", ">20000 lux (high)", Interval(20000, 50000),
-              ALL_R, ALL_THETA, 5.8, 12.0),
-    Table1Row("illumination", ">50000 lux (extreme)", Interval(50000, LUX_MAX, lo_open=True),
-              ALL_R, ALL_THETA, 6.9, 21.0),
+    Table1Row(
+        "illumination", ">20000 lux (high)", Interval(20000, 50000), ALL_R, ALL_THETA, 5.8, 12.0
+    ),
+    Table1Row(
+        "illumination",
+        ">50000 lux (extreme)",
+        Interval(50000, LUX_MAX, lo_open=True),
+        ALL_R,
+        ALL_THETA,
+        6.9,
+        21.0,
+    ),
     Table1Row("reflectivity", "R 0.1 (black matte)", ALL_LUX, _r(0.1), ALL_THETA, 6.5, 18.0),
     Table1Row("reflectivity", "R 0.3 (dark gray)", ALL_LUX, _r(0.3), ALL_THETA, 4.8, 13.0),
     Table1Row("reflectivity", "R 0.5 (neutral)", ALL_LUX, _r(0.5), ALL_THETA, 2.5, 5.0),
     Table1Row("reflectivity", "R 0.7 (light gray)", ALL_LUX, _r(0.7), ALL_THETA, 1.6, 2.0),
     Table1Row("reflectivity", "R 0.9 (white matte)", ALL_LUX, _r(0.9), ALL_THETA, 1.2, 1.0),
-    Table1Row("angle", "0-30 deg (near normal)", ALL_LUX, ALL_R,
-              Interval(0, 30, hi_open=True), 1.8, 2.0),
-    Table1Row("angle", "30-60 deg (moderate)", ALL_LUX, ALL_R,
-              Interval(30, 60, hi_open=True), 4.1, 10.0),
+    Table1Row(
+        "angle", "0-30 deg (near normal)", ALL_LUX, ALL_R, Interval(0, 30, hi_open=True), 1.8, 2.0
+    ),
+    Table1Row(
+        "angle", "30-60 deg (moderate)", ALL_LUX, ALL_R, Interval(30, 60, hi_open=True), 4.1, 10.0
+    ),
     Table1Row("angle", "60-75 deg (steep)", ALL_LUX, ALL_R, Interval(60, 75), 7.3, 25.0),
-    Table1Row("angle", ">75 deg (grazing)", ALL_LUX, ALL_R,
-              Interval(75, THETA_MAX_DEG, lo_open=True), 8.1, 31.0),
-    Table1Row("combined", "L>50000, R=0.1, theta>75 (worst)",
-              Interval(50000, LUX_MAX, lo_open=True), _r(0.1),
-              Interval(75, THETA_MAX_DEG, lo_open=True), 9.0, 35.0, lower_bound=True),
+    Table1Row(
+        "angle",
+        ">75 deg (grazing)",
+        ALL_LUX,
+        ALL_R,
+        Interval(75, THETA_MAX_DEG, lo_open=True),
+        8.1,
+        31.0,
+    ),
+    Table1Row(
+        "combined",
+        "L>50000, R=0.1, theta>75 (worst)",
+        Interval(50000, LUX_MAX, lo_open=True),
+        _r(0.1),
+        Interval(75, THETA_MAX_DEG, lo_open=True),
+        9.0,
+        35.0,
+        lower_bound=True,
+    ),
 )
 """Table I, seed 000 section IV.D, in the paper's order."""
 

@@ -47,7 +47,10 @@ def test_the_targets_can_fail() -> None:
     res = ev.evaluate(sc, 1.0, 0)
     assert ev.check_targets(res, ev.Targets(oracle_ratio=0.5))
     lagging = ev.ScenarioResult(
-        "x", 1, 250.0, 1,
+        "x",
+        1,
+        250.0,
+        1,
         tuple(ev.MethodResult(m, 0.01, 1.0, 0.02, 0.5, 9) for m in ev.METHODS),
     )
     text = " ".join(ev.check_targets(lagging))
@@ -80,8 +83,11 @@ def test_cli_json(capsys: pytest.CaptureFixture[str]) -> None:
 
 def test_cli_table_with_a_user_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     path = tmp_path / "door.toml"
-    path.write_text("[initial]\ndistance_m = 1.5\n[[step]]\nt_s = 1.0\ndistance_m = 3.0\n"
-                    "[[keyframe]]\nt_s = 2.0\nlux = 0.0\n", encoding="utf-8")
+    path.write_text(
+        "[initial]\ndistance_m = 1.5\n[[step]]\nt_s = 1.0\ndistance_m = 3.0\n"
+        "[[keyframe]]\nt_s = 2.0\nlux = 0.0\n",
+        encoding="utf-8",
+    )
     assert run_cli(["--scenario", str(path), "--seed", "2"]) == 0
     out = capsys.readouterr().out
     assert "== door" in out and "oracle_kf" in out and "us per frame" in out

@@ -15,8 +15,14 @@ DT = 0.004  # 250 Hz
 Q = CFG.resolution_m**2 / 12
 
 
-def feed(est: LuxEstimator, c_true: float, n: int, rng: random.Random, s: float = 0.3,
-         spike_p: float = 0.0) -> None:
+def feed(
+    est: LuxEstimator,
+    c_true: float,
+    n: int,
+    rng: random.Random,
+    s: float = 0.3,
+    spike_p: float = 0.0,
+) -> None:
     sd = math.sqrt((c_true / s) ** 2 + Q)
     for _ in range(n):
         e = rng.gauss(0.0, sd)

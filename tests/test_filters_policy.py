@@ -74,9 +74,7 @@ def test_no_flapping_inside_the_weak_band(amps: list[int]) -> None:
 def test_invalid_readings_never_pass(raw_m: float | None, amp: int) -> None:
     p = DropoutPolicy(CFG)
     reasons = gate(p, raw_m, amp)
-    invalid = (
-        raw_m is None or amp < 100 or amp > 32768 or not CFG.min_range_m <= raw_m <= 8.0
-    )
+    invalid = raw_m is None or amp < 100 or amp > 32768 or not CFG.min_range_m <= raw_m <= 8.0
     assert bool(reasons) == invalid
 
 

@@ -91,9 +91,9 @@ def test_paper_sensor_still_works_and_reports_its_sigma() -> None:
 
 def test_physics_never_imports_the_filters() -> None:
     tree = ast.parse(inspect.getsource(physics))
-    names = [
-        n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)
-    ] + [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
+    names = [n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)] + [
+        a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names
+    ]
     assert not any("filters" in n for n in names)
 
 

@@ -73,7 +73,7 @@ def test_linear_hold_and_step_semantics() -> None:
 
 
 def test_step_times_and_frames() -> None:
-    sc = parse_scenario(EXAMPLE.replace('rate_hz = 100', 'rate_hz = 100\nduration_s = 6.0'))
+    sc = parse_scenario(EXAMPLE.replace("rate_hz = 100", "rate_hz = 100\nduration_s = 6.0"))
     assert sc.step_times_s == (4.0,)
     assert sc.step_frames() == (400,)
     assert sc.n_frames == 600

@@ -168,3 +168,32 @@ def test_watchdog_stops_when_the_loop_wedges(tmp_path: Path) -> None:
         sock.close()
         n.close()
         del daemon
+
+
+def test_reload_keeps_the_filter_unless_its_section_changed(tmp_path: Path) -> None:
+    from lunad.daemon.config import load_config
+    from lunad.daemon.notify import Notifier
+    from lunad.daemon.serve import Daemon
+
+    cfg = load_config(None, {"source.device": str(tmp_path / "none")})
+    d = Daemon(cfg, notifier=Notifier(None))
+    f = d.filter
+    d._apply(load_config(None, {"source.device": str(tmp_path / "x"), "sensor.name": "b"}))
+    assert d.filter is f  # a reload that leaves [filter] alone keeps the track and lux
+    d._apply(
+        load_config(None, {"source.device": str(tmp_path / "x")}).model_copy(
+            update={"filter": load_config(None).filter.model_copy(update={"s_min": 0.06})}
+        )
+    )
+    assert d.filter is not f
+
+
+def test_waiting_threshold_leaves_room_for_slow_rates(tmp_path: Path) -> None:
+    from lunad.daemon.config import load_config
+    from lunad.daemon.notify import Notifier
+    from lunad.daemon.serve import Daemon
+
+    fast = Daemon(load_config(None, {"sensor.frame_rate_hz": 100}), notifier=Notifier(None))
+    slow = Daemon(load_config(None, {"sensor.frame_rate_hz": 1}), notifier=Notifier(None))
+    assert fast._waiting_after_ns == 1_000_000_000
+    assert slow._waiting_after_ns == 1_500_000_000  # 1 Hz: a frame a second is not silence

@@ -66,8 +66,14 @@ def test_calibrated_worst_case_meets_papers_lower_bounds(calibrated_rows) -> Non
 
 
 def test_calibrated_has_no_dropouts_in_the_dark() -> None:
-    stats = simulate_cells(CALIBRATED_DEFAULT, np.zeros(3), np.array([0.1, 0.5, 0.9]),
-                           np.array([85.0, 45.0, 0.0]), 500, np.random.default_rng(1))
+    stats = simulate_cells(
+        CALIBRATED_DEFAULT,
+        np.zeros(3),
+        np.array([0.1, 0.5, 0.9]),
+        np.array([85.0, 45.0, 0.0]),
+        500,
+        np.random.default_rng(1),
+    )
     assert np.all(stats.valid == 500)
 
 
@@ -95,8 +101,11 @@ def test_paper_profile_in_metres_misses_table1_by_orders_of_magnitude(paper_rows
     low = paper_rows["0-5000 lux (low)"]
     assert low.mean_error_cm > 10 * low.paper_mean_error_cm
     assert low.failure_rate_pct > 5.0  # Table I: 0 %
-    assert all(r.mean_error_cm > 5 * r.paper_mean_error_cm
-               for r in paper_rows.values() if not r.lower_bound)
+    assert all(
+        r.mean_error_cm > 5 * r.paper_mean_error_cm
+        for r in paper_rows.values()
+        if not r.lower_bound
+    )
 
 
 def test_paper_profile_in_centimetres_has_failure_flat_in_lux() -> None:
@@ -128,8 +137,7 @@ def test_norm_cdf_known_values() -> None:
 
 
 def test_nelder_mead_finds_quadratic_minimum() -> None:
-    x, fx = nelder_mead(lambda v: float(np.sum((v - np.array([1.0, -2.0])) ** 2)),
-                        np.zeros(2))
+    x, fx = nelder_mead(lambda v: float(np.sum((v - np.array([1.0, -2.0])) ** 2)), np.zeros(2))
     assert x == pytest.approx([1.0, -2.0], abs=1e-3) and fx < 1e-6
 
 
@@ -140,12 +148,19 @@ def test_claims_hold_for_worst_case_and_white_target_error() -> None:
 
 
 def test_json_schema_single_profile(capsys) -> None:
-    assert cmd_sweep.run(_parse(["--profile", "calibrated", "--format", "json",
-                                 "--readings", "20"])) == 0
+    assert (
+        cmd_sweep.run(_parse(["--profile", "calibrated", "--format", "json", "--readings", "20"]))
+        == 0
+    )
     objs = json.loads(capsys.readouterr().out)
     assert len(objs) == len(TABLE1_ROWS)
-    keys = {"condition", "mean_error_cm", "failure_rate_pct", "paper_mean_error_cm",
-            "paper_failure_rate_pct"}
+    keys = {
+        "condition",
+        "mean_error_cm",
+        "failure_rate_pct",
+        "paper_mean_error_cm",
+        "paper_failure_rate_pct",
+    }
     assert all(set(o) == keys for o in objs)
     assert all(isinstance(o["failure_rate_pct"], float) for o in objs)
 
@@ -173,8 +188,7 @@ def test_bad_readings_is_an_argparse_error(capsys) -> None:
 
 def test_plot_without_matplotlib_is_one_clear_line(capsys, tmp_path, monkeypatch) -> None:
     monkeypatch.setitem(sys.modules, "matplotlib", None)
-    rc = cmd_sweep.run(_parse(["--profile", "paper", "--readings", "5",
-                               "--plot", str(tmp_path)]))
+    rc = cmd_sweep.run(_parse(["--profile", "paper", "--readings", "5", "--plot", str(tmp_path)]))
     err = capsys.readouterr().err
     assert rc == 1 and "matplotlib" in err and len(err.strip().splitlines()) == 1
 
@@ -185,7 +199,8 @@ def test_help_runs_in_a_subprocess() -> None:
         "p=argparse.ArgumentParser(prog='lunad'); cmd_sweep.add_parser(p.add_subparsers());"
         "p.parse_args(['sweep','--help'])"
     )
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                          timeout=60, check=False)
+    proc = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=False
+    )
     assert proc.returncode == 0
     assert "examples:" in proc.stdout and "--fit" in proc.stdout

@@ -1,0 +1,281 @@
+"""``lunad soak``: the 60-second soak (in the default run), and fast tests of the duration
+parser, the schedule, the frame accounting and the verdict, including that it can fail."""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import threading
+import time
+from typing import Any
+
+import pytest
+
+from lunad.daemon import cmd_soak, soak
+from lunad.daemon.soak import FAULT_KINDS, FaultResult, Ledger, Sample, SoakReport
+from lunad.protocol.frame import encode_frame
+
+# -- duration ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("text", "seconds"),
+    [
+        ("60s", 60),
+        ("10m", 600),
+        ("1h", 3600),
+        ("24h", 86400),
+        ("90", 90),
+        ("1h30m", 5400),
+        ("1.5h", 5400),
+        (" 2M ", 120),
+    ],
+)
+def test_parse_duration(text: str, seconds: float) -> None:
+    assert soak.parse_duration(text) == seconds
+
+
+@pytest.mark.parametrize("text", ["", "0", "0s", "-5s", "10x", "m", "1h 30m", "abc", "5s10"])
+def test_parse_duration_rejects(text: str) -> None:
+    with pytest.raises(ValueError, match="not a duration"):
+        soak.parse_duration(text)
+
+
+# -- schedule ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("duration", [60.0, 90.0, 600.0, 3600.0, 86400.0])
+def test_schedule_covers_every_fault_and_fits(duration: float) -> None:
+    faults = soak.build_schedule(duration, seed=3)
+    kinds = [f.kind for f in faults]
+    assert set(kinds) == set(FAULT_KINDS)
+    if duration >= 600:
+        assert min(kinds.count(k) for k in FAULT_KINDS) >= 3  # repeated rounds
+    assert all(f.at_s >= 0 and f.duration_s > 0 for f in faults)
+    assert max(f.at_s + f.duration_s for f in faults) <= max(duration - 2.0, 45.0)
+    fg = [f for f in faults if f.kind != "slow_subscriber"]
+    for a, b in itertools.pairwise(fg):  # sensor faults never overlap
+        assert a.at_s + a.duration_s <= b.at_s
+    for f in faults:  # a slow subscriber resumes between sensor faults
+        if f.kind == "slow_subscriber":
+            resume = f.params["resume_at_s"]
+            assert not any(g.at_s < resume < g.at_s + g.duration_s for g in fg)
+
+
+def test_schedule_is_seeded() -> None:
+    assert soak.build_schedule(600, 1) == soak.build_schedule(600, 1)
+    assert soak.build_schedule(600, 1) != soak.build_schedule(600, 2)
+    text = soak.format_schedule(soak.build_schedule(60, 5), 5, 60, 100)
+    assert "seed 5" in text and all(k in text for k in FAULT_KINDS)
+
+
+def test_schedule_too_short() -> None:
+    with pytest.raises(ValueError, match="at least"):
+        soak.build_schedule(20, 0)
+
+
+# -- the ledger -------------------------------------------------------------------------
+
+
+def _frame(dist: int, amp: int, temp: int = 2368) -> bytes:
+    return encode_frame(dist, amp, temp)
+
+
+def _write(ledger: Ledger, *parts: bytes, good: tuple[int, ...]) -> None:
+    """Write ``parts`` as one chunk; ``good`` are the indexes of the good frames."""
+    data = b""
+    ends = []
+    for i, p in enumerate(parts):
+        data += p
+        if i in good:
+            ends.append(len(data))
+    ledger.on_written(data, ends)
+
+
+def test_ledger_exact_stream_settles() -> None:
+    led = Ledger()
+    frames = [_frame(200 + i, 1000 + i) for i in range(5)]
+    _write(led, frames[0], b"\x01\x02garbage", frames[1], good=(0, 2))
+    _write(led, frames[2][:4], good=())  # a frame split across two writes
+    _write(led, frames[2][4:], *frames[3:], good=(0, 1, 2))
+    for seq in range(5):
+        assert led.on_range(seq, (200 + seq) / 100, 1000 + seq)
+    assert not led.on_range(4, 2.04, 1004)  # a last-value-cache repeat
+    assert led.settled()
+    assert led.close_books() == (0, 0)
+    s = led.summary()
+    assert s["frames_sent"] == s["reference_frames"] == s["published"] == 5
+    assert s["lost"] == 0 and s["duplicates"] == 1
+
+
+def test_ledger_counts_a_garbage_collision() -> None:
+    """A stray 0x59 before a frame can form a false frame with a good checksum that
+    swallows the real one; a correct parser must publish the false one."""
+    for dist in range(150, 400):
+        real = _frame(dist, 5000)
+        fake = b"\x59" + real[:8]
+        if sum(fake[:8]) & 0xFF == fake[8]:
+            break
+    else:
+        pytest.fail("no colliding frame found")
+    led = Ledger()
+    before = _frame(200, 1000)
+    _write(led, before, b"\x59", real, good=(0, 2))
+    s = led.summary()
+    assert (s["frames_sent"], s["reference_frames"]) == (2, 2)
+    assert (s["false_frames"], s["eaten_frames"]) == (1, 1)
+    fake_dist = fake[2] | fake[3] << 8
+    fake_amp = fake[4] | fake[5] << 8
+    assert led.on_range(0, 2.0, 1000)
+    assert led.on_range(1, fake_dist / 100, fake_amp)
+    assert led.settled() and led.summary()["lost"] == 0
+
+
+def test_ledger_finds_gap_missing_mismatch_and_restart() -> None:
+    led = Ledger()
+    _write(led, *[_frame(200 + i, 1000 + i) for i in range(6)], good=tuple(range(6)))
+    led.on_range(0, 2.00, 1000)
+    led.on_range(2, 2.02, 1002)  # seq 1 lost: a gap
+    led.on_range(3, 2.03, 9999)  # wrong content
+    led.on_range(1, 2.01, 1001)  # seq went back: a restarted daemon
+    assert not led.settled()
+    assert led.close_books() == (2, 0)  # seq 4 and 5 never came
+    s = led.summary()
+    assert (s["gaps"], s["mismatched"], s["seq_backwards"], s["missing"]) == (1, 1, 1, 2)
+    assert s["lost"] == 5
+
+
+def test_ledger_unexpected_frame() -> None:
+    led = Ledger()
+    _write(led, _frame(200, 1000), good=(0,))
+    led.on_range(0, 2.0, 1000)
+    led.on_range(1, 2.5, 1234)  # published, but the bytes held no such frame
+    assert led.close_books() == (0, 1)
+    assert led.summary()["lost"] == 1
+
+
+# -- the verdict ------------------------------------------------------------------------
+
+
+def _clean_report(ledger: Ledger) -> SoakReport:
+    r = SoakReport(seed=0, duration_s=60, rate_hz=100)
+    r.faults = [FaultResult(k, 1.0, 1.0, 0.1, True) for k in FAULT_KINDS]
+    r.accounting = ledger.summary()
+    samples = [Sample(float(t), 50_000.0, 18, t, t * 100) for t in range(0, 62, 2)]
+    r.samples = samples
+    r.warmup_s = 20.0
+    r.rss = soak.rss_verdict(samples, 20.0)
+    r.fds = {"baseline": 18, "end": 18, "ok": 1.0}
+    r.daemon_exit_code = 0
+    return r
+
+
+def _ledger_with(published: list[int], n: int = 10) -> Ledger:
+    led = Ledger()
+    _write(led, *[_frame(200 + i, 1000 + i) for i in range(n)], good=tuple(range(n)))
+    for seq in published:
+        led.on_range(seq, (200 + seq) / 100, 1000 + seq)
+    led.close_books()
+    return led
+
+
+def test_verdict_passes_when_everything_holds() -> None:
+    r = soak.judge(_clean_report(_ledger_with(list(range(10)))))
+    assert r.passed and not r.reasons and all(r.conditions.values())
+
+
+def test_verdict_fails_on_one_lost_frame() -> None:
+    r = soak.judge(_clean_report(_ledger_with([0, 1, 2, 3, 5, 6, 7, 8, 9])))
+    assert not r.passed
+    assert r.conditions["no_frame_lost"] is False
+    assert "1 valid frame(s) lost" in r.reasons[0] and "1 gaps" in r.reasons[0]
+    assert "FAIL:" in soak.format_report(r)
+
+
+def test_verdict_fails_on_slow_recovery_leak_restart_and_missing_fault() -> None:
+    r = _clean_report(_ledger_with(list(range(10))))
+    r.faults[3] = FaultResult("silence", 5.0, 3.0, 6.2, False, "waiting after 1.30 s")
+    r.faults = [f for f in r.faults if f.kind != "churn"]
+    r.fds = {"baseline": 18, "end": 21, "ok": 0.0}
+    r.samples = [Sample(float(t), 50_000.0 + 40 * t, 18, t, t) for t in range(0, 62, 2)]
+    r.rss = soak.rss_verdict(r.samples, 20.0)  # 40 KiB/s: 1.6 MiB in 40 s
+    r.daemon_died_at_s = 30.0
+    r = soak.judge(r)
+    assert not r.passed
+    c = r.conditions
+    assert not c["every_fault_recovered_5s"] and not c["no_fd_growth"]
+    assert not c["rss_growth_under_1mib_per_h"] and not c["daemon_never_restarted"]
+    text = " ".join(r.reasons)
+    assert "silence" in text and "churn" in text and "exited" in text and "RSS" in text
+
+
+def test_rss_verdict_noise_floor_and_long_window() -> None:
+    flat = [Sample(float(t), 50_000.0 + (t % 3), 18, 0, 0) for t in range(0, 60, 2)]
+    assert soak.rss_verdict(flat, 20.0)["ok"]
+    # an hour at +1.5 MiB/h fails although each 10 s step is tiny
+    leak = [
+        Sample(float(t), 50_000.0 + 1.5 * 1024 * t / 3600, 18, 0, 0) for t in range(0, 3600, 10)
+    ]
+    v = soak.rss_verdict(leak, 360.0)
+    assert not v["ok"] and v["mib_per_h"] == pytest.approx(1.5, rel=0.01)
+
+
+# -- the command ------------------------------------------------------------------------
+
+
+def _parse(*argv: str) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="lunad")
+    cmd_soak.add_parser(parser.add_subparsers())
+    return parser.parse_args(["soak", *argv])
+
+
+def test_help_has_examples() -> None:
+    parser = argparse.ArgumentParser(prog="lunad")
+    sub = parser.add_subparsers()
+    cmd_soak.add_parser(sub)
+    text = sub.choices["soak"].format_help()
+    assert "examples:" in text and "--duration 24h" in text and "PASS" in text
+
+
+def test_bad_duration_exits_2(capsys: Any) -> None:
+    assert cmd_soak.run(_parse("--duration", "10x")) == 2
+    assert "--duration" in capsys.readouterr().err
+
+
+def test_soak_60s_passes(capsys: Any) -> None:
+    """The CI soak: every fault type exercised and recovered, nothing lost, PASS."""
+    code = cmd_soak.run(_parse("--duration", "60s", "--seed", "0", "--format", "json"))
+    out, err = capsys.readouterr()
+    doc = json.loads(out)
+    assert "soak schedule: seed 0" in err
+    assert doc["passed"], doc["reasons"]
+    assert code == 0
+    assert {f["kind"] for f in doc["faults"]} == set(FAULT_KINDS)
+    for f in doc["faults"]:
+        assert f["ok"] and f["recovery_s"] is not None and f["recovery_s"] <= 5.0, f
+    acc = doc["accounting"]
+    assert acc["lost"] == 0 and acc["published"] == acc["reference_frames"] > 4000
+    assert acc["frames_sent"] - acc["eaten_frames"] + acc["false_frames"] == acc["published"]
+    assert doc["daemon_exit_code"] == 0 and doc["daemon_died_at_s"] is None
+    assert doc["fds"]["end"] <= doc["fds"]["baseline"]
+
+
+def test_daemon_killed_mid_run_fails() -> None:
+    """The soak owns the daemon: if it dies, the verdict is FAIL (not an exception)."""
+    run = soak.Soak(8.0, seed=0, schedule=[], sample_s=1.0)
+
+    def kill_after_start() -> None:
+        deadline = time.monotonic() + 30
+        while run._t0 == 0.0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(1.0)
+        run.proc.kill()
+
+    killer = threading.Thread(target=kill_after_start, daemon=True)
+    killer.start()
+    r = run.run()
+    killer.join(5)
+    assert not r.passed
+    assert not r.conditions["daemon_never_restarted"] and r.daemon_died_at_s is not None
+    assert any("exited" in reason for reason in r.reasons)
