@@ -15,7 +15,7 @@ current TICK. Then, per sample, as a small state machine driven by ``_read``::
              as we never save it: no flash writes)           -> TRIGGER
 
 Waits (frame pacing on an absolute schedule, the settle, retries, the reboot) are
-``threading.Event`` waits bounded by the caller's timeout, so ``cancel`` wakes them and
+``Wakeup`` (self-pipe) waits bounded by the caller's timeout, so ``cancel`` wakes them and
 a ``_read`` never blocks much longer than asked (one transfer, well under 1 ms at
 100 kHz); an unfinished step is picked up by the next ``_read``. Any ``OSError`` from
 a transfer (NACK errno 121, bus timeout, EIO) is counted in ``nacks`` and the step is
@@ -35,13 +35,13 @@ import enum
 import errno
 import logging
 import struct
-import threading
 import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Protocol
 
 from lunad.daemon.errors import SourceLostError, SourceOpenError
 from lunad.daemon.source import Source
+from lunad.daemon.wakeup import Wakeup
 from lunad.protocol.commands import (
     FRAME_RATES_HZ,
     I2C_ADDRESS_MAX,
@@ -187,7 +187,7 @@ class I2CSource(Source):
         self._triggers_pending = 0
         self._replies = bytearray()
         self._commands = bytearray()
-        self._cancel = threading.Event()
+        self._cancel = Wakeup()
         self._step = _Step.TRIGGER
         self._due_ns = 0  # earliest time of the next transfer (settle, retry, reboot)
         self._next_sample_ns = time.monotonic_ns()  # the pacing schedule
@@ -276,7 +276,6 @@ class I2CSource(Source):
             wake = due if deadline is None else deadline if due is None else min(due, deadline)
             wait_s = None if wake is None else (wake - now) / 1e9
             if self._cancel.wait(wait_s):
-                self._cancel.clear()
                 return b""
 
     def _action_due_ns(self) -> int | None:
@@ -430,6 +429,7 @@ class I2CSource(Source):
 
     def close(self) -> None:
         """Release the bus; safe to call twice. The sensor stays in trigger mode."""
+        self._cancel.close()
         bus, self._bus = self._bus, None
         if bus is not None:
             try:

@@ -26,7 +26,6 @@ from __future__ import annotations
 import json
 import logging
 import signal
-import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -40,6 +39,7 @@ from lunad.daemon.notify import Notifier
 from lunad.daemon.publisher import Publisher
 from lunad.daemon.record import Recorder
 from lunad.daemon.source import Source, open_source
+from lunad.daemon.wakeup import Wakeup
 from lunad.filters import Estimate, RangeFilter, Status
 from lunad.protocol import commands
 from lunad.protocol.commands import CommandId, CommandReply, decode_reply
@@ -83,7 +83,7 @@ class Daemon:
         self.overrides = overrides or {}
         self._open = source_opener
         self.notifier = notifier or Notifier.from_env()
-        self._wake = threading.Event()
+        self._wake = Wakeup()
         self._stopping = False
         self._reload_requested = False
         self._source: Source | None = None
@@ -201,7 +201,7 @@ class Daemon:
                     deadlines.append(self._next_open)
                 self._sleep_until(min(deadlines), now)
                 continue
-            if getattr(src, "exhausted", False):
+            if src.exhausted:
                 log.info("end of %s", src)
                 break
             try:
@@ -226,6 +226,7 @@ class Daemon:
         if self.recorder is not None:
             self.recorder.close()
         notifier.stopping()
+        self._wake.close()
         log.info(
             "stopped: %d frames published, %d checksum errors, %d bytes discarded",
             health.frames,
@@ -236,7 +237,6 @@ class Daemon:
 
     def _sleep_until(self, deadline_ns: int, now: int) -> None:
         self._wake.wait(max(0.0, (deadline_ns - now) / NS))
-        self._wake.clear()
 
     def _read_each(self, src: Source, until_ns: int) -> bool:
         """Read and publish every frame until ``until_ns`` or a reason to look up.

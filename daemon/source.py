@@ -43,6 +43,11 @@ class Source(ABC):
     def _read(self, timeout_s: float | None) -> bytes:
         """Backend read: up to what is available, after waiting at most ``timeout_s``."""
 
+    @property
+    def exhausted(self) -> bool:
+        """True when the source has nothing more to give (the end of a recording)."""
+        return False
+
     def write(self, data: bytes) -> None:  # noqa: B027 - optional for read-only sources
         """Send command bytes to the sensor (sources that cannot send ignore them)."""
 

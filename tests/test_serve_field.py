@@ -197,3 +197,23 @@ def test_waiting_threshold_leaves_room_for_slow_rates(tmp_path: Path) -> None:
     slow = Daemon(load_config(None, {"sensor.frame_rate_hz": 1}), notifier=Notifier(None))
     assert fast._waiting_after_ns == 1_000_000_000
     assert slow._waiting_after_ns == 1_500_000_000  # 1 Hz: a frame a second is not silence
+
+
+def test_wakeup_is_a_self_pipe_safe_from_signal_handlers() -> None:
+    import threading
+
+    from lunad.daemon.wakeup import Wakeup
+
+    w = Wakeup()
+    try:
+        assert w.wait(0.01) is False
+        w.set()
+        w.set()
+        assert w.wait(0.0) is True and w.wait(0.0) is False  # one wait drains every set
+        threading.Timer(0.05, w.set).start()
+        t0 = time.monotonic()
+        assert w.wait(5.0) is True and time.monotonic() - t0 < 4.0
+    finally:
+        w.close()
+        w.close()
+    w.set()  # after close: harmless
