@@ -59,7 +59,9 @@ def test_publish_hz_folds_frames(
             if isinstance(m, RangeMessage):
                 seqs.append(m.seq)
     rate = sum(1 for _ in seqs) / 2.0
-    assert 30 <= rate <= 60  # at most 50 a second (loosely: the machine is shared)
+    print(f"publish-hz 50: {rate:.1f} messages a second")
+    assert len(seqs) >= 10  # it publishes (how often exactly depends on a shared machine)
+    assert rate <= 55  # at most 50 a second: the contract; a late wake-up only lowers it
     assert seqs[-1] + 1 == dev.frames_sent  # seq still counts every frame
     assert max(b - a for a, b in itertools.pairwise(seqs)) >= 3  # frames folded
 
