@@ -57,7 +57,8 @@ class SerialSource(Source):
                 return b""
             if abort in ready:
                 os.read(abort, 1000)
-                return b""
+                if ser.fd not in ready:
+                    return b""  # woken with nothing to read; data first when both are ready
             data = os.read(ser.fd, 4096)
             if not data:
                 raise SourceLostError(f"{self.device}: readable but returned no data (unplugged?)")

@@ -243,8 +243,8 @@ class Daemon:
 
         The inner loop of the daemon: while bytes flow it only reads, parses, filters
         and sends. It returns to the housekeeping loop at the deadline, on a read
-        timeout or wake-up, on a stop/reload request, a pending subscription, or a
-        state change to report. True when any bytes came.
+        timeout or wake-up, on a stop/reload request, or a state change to report. New
+        subscriptions are answered in here, between reads. True when any bytes came.
         """
         got = False
         read = src.read
@@ -254,12 +254,16 @@ class Daemon:
         pub = self.pub
         health = self.health
         assert pub is not None
-        while not (self._stopping or self._reload_requested or pub.pending):
+        while not (self._stopping or self._reload_requested):
+            if pub.pending:
+                pub.pump()  # here, not by leaving: a burst of socket events must not starve reads
             left = until_ns - time.monotonic_ns()
             if left <= 0:
                 break
             chunk = read(left / NS)
             if chunk is None:
+                if pub.pending:
+                    continue  # woken for a subscription, not a timeout
                 break
             got = True
             self._last_bytes = t_mono = chunk.t_mono_ns

@@ -24,6 +24,7 @@ Counters come out as ``FrameParser.stats`` would have them after one ``feed``.
 
 from __future__ import annotations
 
+import bisect
 from dataclasses import dataclass
 
 import numpy as np
@@ -106,9 +107,12 @@ def decode_bulk(data: bytes | bytearray | memoryview, fmt: int = OutputFormat.CM
     r_starts_l: list[int] = []
     r_lens_l: list[int] = []
     r_bad_l: list[int] = []
+    d_list = d_starts.tolist()
     for p in np.flatnonzero(a[: max(0, n - 2)] == COMMAND_HEADER_BYTE).tolist():
         length = int(_REPLY_LEN_BY_ID[a[p + 2]])
         if length == 0 or a[p + 1] != length or p + length > n:
+            continue
+        if _frame_inside(d_list, p, p + length):
             continue
         if int(a[p : p + length - 1].sum()) & 0xFF == a[p + length - 1]:
             r_starts_l.append(p)
@@ -156,7 +160,11 @@ def decode_bulk(data: bytes | bytearray | memoryview, fmt: int = OutputFormat.CM
         if b == DATA_HEADER_BYTE:
             cut = p == n - 1 or (a[p + 1] == DATA_HEADER_BYTE and n - p < DATA_FRAME_LEN)
         elif b == COMMAND_HEADER_BYTE:
-            cut = n - p < 3 or (_REPLY_LEN_BY_ID[a[p + 2]] == a[p + 1] != 0 and n - p < a[p + 1])
+            cut = n - p < 3 or (
+                _REPLY_LEN_BY_ID[a[p + 2]] == a[p + 1] != 0
+                and n - p < a[p + 1]
+                and not _frame_inside(d_list, p, n)
+            )
         else:
             continue
         if cut and not _covered(starts, ends, p):
@@ -213,6 +221,13 @@ def _windows(a: npt.NDArray[np.uint8], starts: npt.NDArray[np.int64]) -> npt.NDA
     if len(starts) == 0:
         return np.zeros((0, DATA_FRAME_LEN), dtype=np.uint8)
     return np.lib.stride_tricks.sliding_window_view(a, DATA_FRAME_LEN)[starts]
+
+
+def _frame_inside(d_starts: list[int], p: int, end: int) -> bool:
+    """A good data frame lies wholly in ``(p, end)``: the ``5A`` at ``p`` is no reply
+    (the streaming parser's rule, ``lunad.protocol.parser._frame_inside``)."""
+    k = bisect.bisect_right(d_starts, p)
+    return k < len(d_starts) and d_starts[k] + DATA_FRAME_LEN <= end
 
 
 def _covered(starts: npt.NDArray[np.int64], ends: npt.NDArray[np.int64], p: int) -> bool:

@@ -3,7 +3,8 @@
 How this works: the caller feeds whatever bytes it read, in any chunking, with the
 monotonic read time. The parser scans for a header: ``59 59`` starts a 9-byte data
 frame, ``5A`` a command reply whose (ID, Len) pair must be a known one. A candidate
-is accepted only when its checksum is right; otherwise exactly one byte is dropped
+is accepted only when its checksum is right (and a reply only when no whole good data
+frame lies inside its declared length); otherwise exactly one byte is dropped
 and the scan resumes from the next byte, so garbage never costs the good frame that
 follows it (TFLUNA.md section 10; pyubx2 skips a whole declared length and can lose
 a frame starting inside it). Bytes that start no frame are counted as discarded.
@@ -18,7 +19,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from lunad.protocol.commands import COMMAND_HEADER_BYTE, REPLY_LENGTHS, CommandId, CommandReply
-from lunad.protocol.frame import DATA_FRAME_LEN, DATA_HEADER_BYTE, Frame, OutputFormat
+from lunad.protocol.frame import (
+    DATA_FRAME_LEN,
+    DATA_HEADER,
+    DATA_HEADER_BYTE,
+    Frame,
+    OutputFormat,
+)
 
 _HEADERS = (DATA_HEADER_BYTE, COMMAND_HEADER_BYTE)
 
@@ -103,6 +110,10 @@ class FrameParser:
                     break
                 length = buf[i + 1]
                 if REPLY_LENGTHS.get(buf[i + 2]) == length:
+                    if _frame_inside(buf, i + 1, min(n, i + length)):
+                        i += 1
+                        discarded += 1
+                        continue
                     if n - i < length:
                         break
                     end = i + length - 1
@@ -141,6 +152,22 @@ class FrameParser:
                 self.fmt = OutputFormat(reply.payload[0])
             except ValueError:
                 pass
+
+
+def _frame_inside(buf: bytearray, start: int, end: int) -> bool:
+    """True when a whole data frame with a good checksum lies in ``buf[start:end]``.
+
+    A ``5A`` reply candidate spanning one is taken for garbage: otherwise a stray
+    0x5A that looks like a reply header would hold a real frame back until the rest
+    of its declared length arrives, which at a pause or before an unplug may be never.
+    The rule depends only on the bytes, so the result stays the same in any chunking.
+    """
+    j = buf.find(DATA_HEADER, start, end)
+    while 0 <= j <= end - DATA_FRAME_LEN:
+        if (sum(buf[j : j + 8]) & 0xFF) == buf[j + 8]:
+            return True
+        j = buf.find(DATA_HEADER, j + 1, end)
+    return False
 
 
 def _next_header(buf: bytearray, start: int, end: int) -> int:

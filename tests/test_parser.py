@@ -169,3 +169,16 @@ def _key(x: Frame | CommandReply) -> tuple[object, ...]:
     if isinstance(x, Frame):
         return ("f", x.dist, x.amp, x.temp_raw)
     return ("r", x.cmd_id, x.payload)
+
+
+def test_stray_reply_header_does_not_hold_a_frame_back() -> None:
+    """Regression (found by `lunad soak`): garbage 5A 1E 14 looks like the header of a
+    30-byte reply; a real frame right after it must come out at once, not wait for 30
+    bytes that may never arrive (a pause, then an unplug that resets the parser)."""
+    data = b"\x5a\x1e\x14\x00" + encode_frame(200, 1500, 2368)
+    p = FrameParser()
+    frames = [f for f in p.feed(data, 0) if isinstance(f, Frame)]
+    assert [(f.dist, f.amp) for f in frames] == [(200, 1500)]
+    assert p.stats.buffered == 0 and p.stats.bytes_discarded == 4
+    for frames3 in three_ways(data):
+        assert frames3 == [(200, 1500, 2368)]
