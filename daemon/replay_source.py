@@ -7,7 +7,7 @@ the replay read instead, so this class overrides ``read`` itself: the parser and
 then see the live run's times, and publish the same readings (time-dependent filter
 steps included) whatever the replay speed.
 
-``cancel`` writes a byte to a self-pipe that the wait selects on: it is called from the
+``cancel`` sets a ``Wakeup`` (a self-pipe the wait selects on): it is called from the
 daemon's signal handler, where taking a ``threading.Event``'s lock could deadlock with a
 wait the handler interrupted.
 """
@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import logging
 import os
-import select
 import time
 from pathlib import Path
 from typing import Protocol
@@ -24,6 +23,7 @@ from typing import Protocol
 from lunad.daemon.errors import SourceOpenError
 from lunad.daemon.record import Pacer, Replay, check_speed
 from lunad.daemon.source import Chunk, Source
+from lunad.daemon.wakeup import Wakeup
 
 log = logging.getLogger(__name__)
 
@@ -69,7 +69,7 @@ class ReplaySource(Source):
         except OSError as exc:
             raise SourceOpenError(f"cannot open recording {self.path}: {exc}") from exc
         self._chunks = iter(self._replay)
-        self._wake_r, self._wake_w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
+        self._wakeup = Wakeup()
         self._closed = False
         self._next: Chunk | None = next(self._chunks, None)
         self._due_s: float | None = None
@@ -116,15 +116,7 @@ class ReplaySource(Source):
 
     def _wait(self, timeout_s: float) -> bool:
         """Sleep up to ``timeout_s`` seconds; True (and the wake-up consumed) if cancelled."""
-        ready, _, _ = select.select([self._wake_r], [], [], timeout_s)
-        if not ready:
-            return False
-        try:
-            while os.read(self._wake_r, 512):
-                pass
-        except BlockingIOError:
-            pass
-        return True
+        return self._wakeup.wait(timeout_s)
 
     def _read(self, timeout_s: float | None) -> bytes:
         chunk = self.read(timeout_s)
@@ -138,12 +130,7 @@ class ReplaySource(Source):
 
     def cancel(self) -> None:
         """Wake a pacing wait in ``read``; safe from a signal handler or another thread."""
-        if self._closed:
-            return
-        try:
-            os.write(self._wake_w, b"\0")
-        except (BlockingIOError, OSError):
-            pass  # pipe full (a wake-up is already pending) or closed under us
+        self._wakeup.set()
 
     def close(self) -> None:
         """Close the recording; safe to call twice."""
@@ -151,8 +138,7 @@ class ReplaySource(Source):
             return
         self._closed = True
         self._replay.close()
-        os.close(self._wake_r)
-        os.close(self._wake_w)
+        self._wakeup.close()
 
     def __str__(self) -> str:
         pace = "max speed" if self.speed is None else f"{self.speed:g}x"
