@@ -139,6 +139,24 @@ def is_range(msg: Message) -> bool:
     return isinstance(msg, RangeMessage)
 
 
+def ranges_through(sub: Subscriber, last_seq: int, timeout_s: float = 15.0) -> list[RangeMessage]:
+    """Every range message up to and including seq ``last_seq``; fail after ``timeout_s``.
+
+    Tests wait for a condition, never count what arrives in a fixed window: a shared
+    machine can stall the daemon or the device thread for a second or more.
+    """
+    out: list[RangeMessage] = []
+    deadline = time.monotonic() + timeout_s
+    while not out or out[-1].seq < last_seq:
+        m = sub.recv(timeout_s=max(0.0, deadline - time.monotonic()))
+        if m is None:
+            at = out[-1].seq if out else None
+            pytest.fail(f"seq {last_seq} not reached within {timeout_s} s (last seen {at})")
+        if isinstance(m, RangeMessage):
+            out.append(m)
+    return out
+
+
 def health_state(state: str) -> Callable[[Message], bool]:
     return lambda m: isinstance(m, HealthMessage) and m.state == state
 
@@ -151,6 +169,7 @@ def helpers() -> Any:
         wait_for = staticmethod(wait_for)
         is_range = staticmethod(is_range)
         health_state = staticmethod(health_state)
+        ranges_through = staticmethod(ranges_through)
         lunad = LUNAD
 
     return H

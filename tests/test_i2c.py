@@ -246,7 +246,7 @@ def test_hung_sensor_rebooted_then_trigger_mode_set_again(
     quiet_from = fake.transfers
     t0 = time.monotonic()
     assert src.read(0.05) is None
-    assert time.monotonic() - t0 < 0.5 and fake.transfers == quiet_from
+    assert time.monotonic() - t0 < 0.9 and fake.transfers == quiet_from  # not through the 1 s
 
     got = data_frames(collect(src, p, frames=1, within_s=3.0))
     assert len(got) == 1 and src.samples == 2

@@ -61,7 +61,9 @@ def test_replay_publishes_what_the_live_run_did(
         first = helpers.wait_for(sub, helpers.is_range, timeout=10)
         time.sleep(1.5)
         dev.pause(3600)
-        live_msgs = [first, *ranges_until_quiet(sub)]
+        time.sleep(0.1)  # a frame the device was writing when paused
+        live_msgs = [first, *helpers.ranges_through(sub, dev.frames_sent - 1)]
+        assert ranges_until_quiet(sub, quiet_s=0.5) == []
     assert live.stop() == 0
     s0 = live_msgs[0].seq  # the live subscriber joined a little late (ZeroMQ slow joiner)
     assert [m.seq for m in live_msgs] == list(range(s0, s0 + len(live_msgs)))
@@ -72,8 +74,8 @@ def test_replay_publishes_what_the_live_run_did(
     ep2 = f"ipc://{tmp_path}/replay.sock"
     replay = start_daemon("--replay", str(rec), "--speed", "max", "--publish", ep2, "--name", "r")
     with Subscriber(ep2) as sub:
-        replayed = ranges_until_quiet(sub, quiet_s=2.0)
-    assert replay.proc.wait(timeout=10) == 0  # the end of the recording ends the daemon
+        replayed = helpers.ranges_through(sub, live_msgs[-1].seq)
+        assert replay.proc.wait(timeout=15) == 0  # the end of the recording ends the daemon
     assert [m.seq for m in replayed] == list(range(len(replayed)))  # replay waited for us
     assert comparable(replayed[s0:]) == comparable(live_msgs)
     assert any(m.status != "ok" for m in replayed)  # a run with dropouts and filtering in it
@@ -85,7 +87,7 @@ def test_lunad_record_command(
     dev = device(rate_hz=100, output_enabled=False)
     out = tmp_path / "cmd.lunarec"
     r = subprocess.run(
-        [*helpers.lunad, "record", "--device", dev.path, "--out", str(out), "--duration", "1.0"],
+        [*helpers.lunad, "record", "--device", dev.path, "--out", str(out), "--duration", "2.0"],
         capture_output=True,
         text=True,
         timeout=30,
@@ -98,7 +100,7 @@ def test_lunad_record_command(
         for c in rp:
             p.feed(c.data, c.t_mono_ns)
     assert p.stats.replies >= 3  # version, rate, output echoes: it configured the sensor
-    assert 50 <= p.stats.frames <= dev.frames_sent
+    assert 10 <= p.stats.frames <= dev.frames_sent  # 100 Hz for about 2 s, very loosely
     assert p.stats.checksum_errors == 0
 
 
@@ -122,14 +124,14 @@ def test_simulated_i2c_bus_through_the_daemon(
     d = start_daemon("--bus", "sim", "--publish", endpoint, "--rate", "100", "--name", "i2c")
     with Subscriber(endpoint) as sub:
         helpers.wait_for(sub, helpers.is_range, timeout=10)
-        msgs = []
-        t_end = time.monotonic() + 1.0
-        while time.monotonic() < t_end:
-            m = sub.recv(timeout_s=0.2)
+        msgs: list[RangeMessage] = []
+        t_end = time.monotonic() + 10.0
+        while len(msgs) < 50 and time.monotonic() < t_end:
+            m = sub.recv(timeout_s=0.5)
             if isinstance(m, RangeMessage):
                 msgs.append(m)
         h = helpers.wait_for(sub, helpers.health_state("connected"), timeout=3)
-    assert len(msgs) >= 20
+    assert len(msgs) == 50
     assert [m.seq for m in msgs] == list(range(msgs[0].seq, msgs[0].seq + len(msgs)))
     assert all(m.raw_m is not None and abs(m.raw_m - 2.0) < 0.2 for m in msgs)
     assert all(30 < m.temp_c < 50 for m in msgs)  # 0.01 degC registers, converted

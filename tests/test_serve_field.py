@@ -17,27 +17,28 @@ from lunad.sim.pty_device import PtyDevice
 
 
 def test_late_subscriber_gets_cached_values_at_once(
-    device: Callable[..., PtyDevice], start_daemon: Any, endpoint: str, helpers: Any
+    device: Callable[..., PtyDevice],
+    start_daemon: Any,
+    endpoint: str,
+    tmp_path: Path,
+    helpers: Any,
 ) -> None:
     dev = device(rate_hz=100, output_enabled=False)
-    start_daemon("--device", dev.path, "--publish", endpoint, "--name", "lv")
+    cfg = tmp_path / "lv.toml"  # health once a minute: any health within seconds is the cache's
+    cfg.write_text("[publish]\nhealth_interval_s = 60\n")
+    start_daemon("--config", str(cfg), "--device", dev.path, "--publish", endpoint, "--name", "lv")
     with Subscriber(endpoint) as first:
         last = helpers.wait_for(first, helpers.is_range, timeout=10).seq
         dev.pause(3600)
-        while (m := first.recv(timeout_s=0.3)) is not None:
+        while not helpers.health_state("waiting")(m := first.recv(timeout_s=10.0)):
+            assert m is not None, "no waiting state after the sensor went silent"
             last = m.seq if isinstance(m, RangeMessage) else last
-        assert last is not None
-        t0 = time.monotonic()
         with Subscriber(endpoint) as late:
-            got: dict[str, Any] = {}
-            while len(got) < 2 and time.monotonic() - t0 < 2.0:
-                m = late.recv(timeout_s=0.05)
-                if m is not None:
-                    got.setdefault(m.kind, (m, time.monotonic() - t0))
-        rng, t_rng = got["range"]
-        _, t_health = got["health"]
-        assert rng.seq == last  # the cached latest reading, while the sensor is silent
-        assert t_rng < 0.1 and t_health < 0.1, (t_rng, t_health)
+            got = [late.recv(timeout_s=5.0), late.recv(timeout_s=5.0)]
+        # a silent sensor and no periodic health due: only a cache sends these
+        assert sorted(m.kind for m in got if m is not None) == ["health", "range"]
+        rng = next(m for m in got if isinstance(m, RangeMessage))
+        assert rng.seq == last  # the cached latest reading
         assert first.recv(timeout_s=0.2) is None or first.lost == 0  # duplicates dropped
 
 
@@ -58,7 +59,9 @@ def test_publish_hz_folds_frames(
         while (m := sub.recv(timeout_s=0.5)) is not None:
             if isinstance(m, RangeMessage):
                 seqs.append(m.seq)
-    rate = sum(1 for _ in seqs) / 2.0
+    # the rate in the sensor's time: the device paces frames at 250 Hz, so seq is a clock
+    # that a stalled subscriber or test process cannot stretch
+    rate = (len(seqs) - 1) / ((seqs[-1] - seqs[0]) / 250)
     print(f"publish-hz 50: {rate:.1f} messages a second")
     assert len(seqs) >= 10  # it publishes (how often exactly depends on a shared machine)
     assert rate <= 55  # at most 50 a second: the contract; a late wake-up only lowers it
@@ -116,11 +119,11 @@ def test_systemd_notify_and_watchdog(
             dev.path,
             "--publish",
             endpoint,
-            env={"NOTIFY_SOCKET": path, "WATCHDOG_USEC": "400000"},
+            env={"NOTIFY_SOCKET": path, "WATCHDOG_USEC": "1000000"},
         )
         seen: list[tuple[float, str]] = []
         t0 = time.monotonic()
-        while time.monotonic() - t0 < 3.0:
+        while time.monotonic() - t0 < 4.0:
             try:
                 seen.append((time.monotonic(), sock.recv(4096).decode()))
             except TimeoutError:
@@ -139,8 +142,8 @@ def test_systemd_notify_and_watchdog(
     assert any(m.startswith("STATUS=connected,") and "fps" in m for m in msgs)
     pings = [t for t, m in seen if m == "WATCHDOG=1"]
     gaps = [b - a for a, b in itertools.pairwise(pings)]
-    assert len(pings) >= 4 and max(gaps) < 1.0  # every 0.5 s, never past WATCHDOG_USEC
-    assert sorted(gaps)[len(gaps) // 2] < 0.7  # the cadence is half the interval
+    assert len(pings) >= 4
+    assert 0.3 < sorted(gaps)[len(gaps) // 2] < 0.75  # every 0.5 s: half of WATCHDOG_USEC
     assert msgs[-1] == "STOPPING=1"
     assert msgs.index("READY=1") < len(msgs) - 1
 
