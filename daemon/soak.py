@@ -54,6 +54,8 @@ from pathlib import Path
 from typing import Any
 
 from lunad.daemon.bench import _cpu_ticks
+from lunad.daemon.record import Recorder
+from lunad.daemon.source import Chunk
 from lunad.protocol.frame import Frame, encode_frame, temp_raw_from_c
 from lunad.protocol.parser import FrameParser
 from lunad.sim.pty_device import PtyDevice
@@ -66,6 +68,10 @@ RSS_LIMIT_MIB_PER_H = 1.0
 RSS_NOISE_FLOOR_KIB = 256.0  # below this, growth in a short window is allocator noise
 STALL_LIMIT_S = 1.0  # sensor write -> daemon read, while a subscriber is slow
 DRAIN_TIMEOUT_S = 5.0
+DAEMON_INPUT = "daemon-input.lunarec"
+"""With ``--keep-logs``: every byte the daemon read (its ``[source] record``)."""
+SENSOR_OUTPUT = "sensor-output.lunarec"
+"""With ``--keep-logs``: every byte the virtual sensor wrote, stamped when written."""
 MIN_DURATION_S = 50.0
 SHORT_SOAK_S = 120.0  # up to this, the minimum fault durations, one round
 
@@ -864,10 +870,11 @@ class Soak:
         return time.monotonic() - self._t0
 
     def _config_text(self) -> str:
+        record = f'record = "{self.keep_logs / DAEMON_INPUT}"\n' if self.keep_logs else ""
         return (
             'log_level = "info"\n'
             f'[sensor]\nname = "{SENSOR}"\nframe_rate_hz = {self.rate_hz}\n'
-            f'[source]\ndevice = "{self.link}"\n'
+            f'[source]\ndevice = "{self.link}"\n{record}'
             f'[publish]\nendpoint = "{self.endpoint}"\n'
             f"health_interval_s = {self._health_interval}\n"
         )
@@ -1197,6 +1204,14 @@ class Soak:
         self.endpoint = f"ipc://{self.work}/soak.sock"
         self.config = self.work / "soak.toml"
         self.log_path = self.work / "daemon.log"
+        on_written = self.ledger.on_written
+        self._sensor_rec: Recorder | None = None
+        if self.keep_logs is not None:
+            self.keep_logs.mkdir(parents=True, exist_ok=True)
+            for name in (DAEMON_INPUT, SENSOR_OUTPUT):
+                (self.keep_logs / name).unlink(missing_ok=True)
+            self._sensor_rec = Recorder(self.keep_logs / SENSOR_OUTPUT, "soak: sensor writes")
+            on_written = self._record_written
         self.config.write_text(self._config_text())
         rep = self.report
         self.dev = PtyDevice(
@@ -1204,7 +1219,7 @@ class Soak:
             link=self.link,
             seed=self.seed,
             output_enabled=False,
-            on_bytes_written=self.ledger.on_written,
+            on_bytes_written=on_written,
         )
         self.dev.pause(1e9)  # until the subscription is live: seq 0 must arrive
         self.dev.start()
@@ -1246,6 +1261,8 @@ class Soak:
             log_file.close()
             self.sub.close()
             self.dev.close()
+            if self._sensor_rec is not None:
+                self._sensor_rec.close()
             rep.accounting = self.ledger.summary()
             rep.bad_messages = self.sub.bad_messages
             rep.frames_unread = self.dev.frames_unread
@@ -1254,6 +1271,11 @@ class Soak:
             self._keep()
             shutil.rmtree(self.work, ignore_errors=True)
         return rep
+
+    def _record_written(self, data: bytes, ends: list[int], t_ns: int) -> None:
+        assert self._sensor_rec is not None
+        self._sensor_rec(Chunk(data, t_ns))
+        self.ledger.on_written(data, ends, t_ns)
 
     def _start_stream(self) -> None:
         w = self.sub.watch("health", 0, None)

@@ -107,19 +107,38 @@ def encode_range(
     Args:
         sensor_json: the sensor name already JSON-encoded (with quotes), done once.
         reasons_json: the reasons list already JSON-encoded, e.g. ``'["weak_signal"]'``.
-        Everything else as in ``RangeMessage``; metres are rounded to 0.1 mm.
+        Everything else as in ``RangeMessage``; metres are rounded to 0.1 mm (sigma to 0.01 mm).
     """
-    # None -> null written out in place, not through a helper: no calls per field.
     return (
-        f'{{"v":1,"sensor":{sensor_json},"seq":{seq},"t_mono_ns":{t_mono_ns},'
-        f'"t_unix_ns":{t_unix_ns},'
-        f'"raw_m":{"null" if raw_m is None else repr(round(raw_m, 4))},"amp":{amp},'
-        f'"temp_c":{round(temp_c, 3)!r},"strength":{round(strength, 5)!r},'
-        f'"range_m":{"null" if range_m is None else repr(round(range_m, 4))},'
-        f'"sigma_m":{"null" if sigma_m is None else repr(round(sigma_m, 5))},'
-        f'"lux_est":{"null" if lux_est is None else repr(round(lux_est, 1))},'
-        f'"status":"{status}","reasons":{reasons_json},"zone":"{zone}"}}'
+        _RANGE_JSON
+        % (
+            sensor_json,
+            seq,
+            t_mono_ns,
+            t_unix_ns,
+            "null" if raw_m is None else f"{raw_m:.4f}",
+            amp,
+            temp_c,
+            strength,
+            "null" if range_m is None else f"{range_m:.4f}",
+            "null" if sigma_m is None else f"{sigma_m:.5f}",
+            "null" if lux_est is None else f"{lux_est:.1f}",
+            status,
+            reasons_json,
+            zone,
+        )
     ).encode()
+
+
+_RANGE_JSON = (
+    '{"v":1,"sensor":%s,"seq":%d,"t_mono_ns":%d,"t_unix_ns":%d,"raw_m":%s,"amp":%d,'
+    '"temp_c":%.3f,"strength":%.5f,"range_m":%s,"sigma_m":%s,"lux_est":%s,'
+    '"status":"%s","reasons":%s,"zone":"%s"}'
+)
+"""One ``%`` format for the whole message: about 2.5x faster than an f-string of
+``repr(round(x, n))`` calls (``lunad bench``, line "pipeline"). Fixed decimals
+(``1.9800``) parse to the same float as ``round(x, 4)``; ``tests/test_messages.py``
+checks that on random values."""
 
 
 def encode_health(msg: HealthMessage) -> bytes:

@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 from pydantic import ValidationError
 
 from lunad.protocol.messages import (
@@ -129,3 +131,38 @@ def test_health_round_trip_has_ros_range_facts() -> None:
     d = json.loads(encode_health(h))
     assert d["min_range_m"] == 0.2 and d["max_range_m"] == 8.0
     assert d["radiation_type"] == "infrared" and 0.03 < d["fov_rad"] < 0.04
+
+
+finite = st.floats(min_value=-1e6, max_value=1e6, allow_nan=False)
+
+
+@given(
+    raw=st.none() | finite,
+    temp=st.integers(0, 65535),
+    strength=st.floats(0, 100),
+    rng=st.none() | finite,
+    sigma=st.none() | st.floats(0, 10),
+    lux=st.none() | st.floats(0, 2e5),
+)
+def test_encode_range_values_are_the_rounded_inputs(
+    raw: float | None,
+    temp: int,
+    strength: float,
+    rng: float | None,
+    sigma: float | None,
+    lux: float | None,
+) -> None:
+    """Fixed-decimal formatting parses to exactly ``round(x, n)``, the documented value."""
+    temp_c = temp / 8 - 256  # the sensor's raw/8 - 256: exact in three decimals
+    d = json.loads(
+        encode_range(
+            '"s"', 1, 2, 3, raw, 100, temp_c, strength, rng, sigma, lux, "ok", "[]", "stable"
+        )
+    )
+
+    def want(x: float | None, n: int) -> float | None:
+        return None if x is None else round(x, n)
+
+    assert d["raw_m"] == want(raw, 4) and d["range_m"] == want(rng, 4)
+    assert d["sigma_m"] == want(sigma, 5) and d["lux_est"] == want(lux, 1)
+    assert d["temp_c"] == temp_c and d["strength"] == round(strength, 5)
