@@ -332,16 +332,19 @@ class Ledger:
         return self.gaps + self.missing + self.mismatched + self.unexpected + self.backwards
 
     def on_written(self, data: bytes, ends: list[int], t_ns: int = 0) -> None:
-        """Bytes the device wrote at ``t_ns``; ``ends``: where good frames end in ``data``."""
+        """Bytes the device wrote at ``t_ns``; ``ends``: where good frames end in ``data``.
+
+        The parser is fed each byte once. The last 8 bytes of earlier writes are kept
+        apart (``_carry``) only to look up a good frame that began in an earlier write.
+        """
         with self._lock:
-            carry = self._carry
-            buf = carry + data
+            look = self._carry + data
+            off = len(self._carry)
             pos = 0
             feed = self._parser.feed
             for e in ends:
-                e += len(carry)
-                items = feed(buf[pos:e], 0)
-                good = buf[e - 9 : e]
+                items = feed(data[pos:e], 0)
+                good = look[off + e - 9 : off + e]
                 real = (good[2] | good[3] << 8, good[4] | good[5] << 8)
                 last = items[-1] if items else None
                 found = type(last) is Frame and (last.dist, last.amp) == real  # type: ignore[union-attr]
@@ -352,11 +355,11 @@ class Ledger:
                 for f in frames:
                     self._reference(f, t_ns)  # type: ignore[arg-type]
                 pos = e
-            for f in feed(buf[pos:], 0):
+            for f in feed(data[pos:], 0):
                 if type(f) is Frame:
                     self.false_frames += 1
                     self._reference(f, t_ns)  # type: ignore[arg-type]
-            self._carry = buf[-8:]
+            self._carry = look[-8:]
 
     def _reference(self, f: Frame, t_write: int) -> None:
         key = (_raw_m(f.dist), f.amp)
@@ -753,7 +756,7 @@ def judge(report: SoakReport) -> SoakReport:
     recovered = not failed and not missing_kinds
     for f in failed[:5]:
         rec = "never" if f.recovery_s is None else f"{f.recovery_s:.2f} s"
-        reasons.append(f"{f.kind} at {f.at_s:.1f} s did not recover in time ({rec}): {f.note}")
+        reasons.append(f"{f.kind} at {f.at_s:.1f} s failed (recovery {rec}): {f.note}")
     if len(failed) > 5:
         reasons.append(f"... and {len(failed) - 5} more faults failed")
     if missing_kinds:

@@ -33,12 +33,18 @@ def test_late_subscriber_gets_cached_values_at_once(
         while not helpers.health_state("waiting")(m := first.recv(timeout_s=10.0)):
             assert m is not None, "no waiting state after the sensor went silent"
             last = m.seq if isinstance(m, RangeMessage) else last
-        with Subscriber(endpoint) as late:
-            got = [late.recv(timeout_s=5.0), late.recv(timeout_s=5.0)]
-        # a silent sensor and no periodic health due: only a cache sends these
-        assert sorted(m.kind for m in got if m is not None) == ["health", "range"]
-        rng = next(m for m in got if isinstance(m, RangeMessage))
-        assert rng.seq == last  # the cached latest reading
+        took = []
+        for _ in range(3):  # the best of three: a shared machine may stall one attempt
+            t0 = time.monotonic()
+            with Subscriber(endpoint) as late:
+                got = [late.recv(timeout_s=5.0), late.recv(timeout_s=5.0)]
+            took.append(time.monotonic() - t0)
+            # a silent sensor and no periodic health due: only a cache sends these
+            assert sorted(m.kind for m in got if m is not None) == ["health", "range"]
+            rng = next(m for m in got if isinstance(m, RangeMessage))
+            assert rng.seq == last  # the cached latest reading
+        print(f"late subscriber: cached range and health after {min(took) * 1000:.1f} ms")
+        assert min(took) < 0.1  # within 100 ms of connecting
         assert first.recv(timeout_s=0.2) is None or first.lost == 0  # duplicates dropped
 
 
