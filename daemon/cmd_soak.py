@@ -50,7 +50,12 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--rate", type=int, default=100, help="sensor frame rate, Hz (default 100)")
     p.add_argument("--progress", action="store_true", help="a progress line every minute")
     p.add_argument("--format", choices=("table", "json"), default="table", help="report format")
-    p.add_argument("--keep-logs", metavar="DIR", help="keep the daemon log, config and report")
+    p.add_argument(
+        "--keep-logs",
+        metavar="DIR",
+        help="keep the daemon log, config, report, and recordings of the bytes the sensor "
+        "wrote and the daemon read (docs/soak.md)",
+    )
     p.set_defaults(func=run)
 
 
