@@ -324,9 +324,9 @@ class Daemon:
             est.range_m,
             est.sigma_m,
             est.lux_est,
-            est.status.value,
+            est.status,  # StrEnum: formats as its value
             reasons,
-            est.zone.value,
+            est.zone,
         )
         self.pub.send(self._range_topic, payload)  # type: ignore[union-attr]
 

@@ -9,17 +9,17 @@ from __future__ import annotations
 
 import time
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
 from types import TracebackType
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 if TYPE_CHECKING:
     from lunad.daemon.config import SourceSection
 
 
-@dataclass(frozen=True, slots=True)
-class Chunk:
-    """Bytes read in one call, and when (``time.monotonic_ns()`` after the read)."""
+class Chunk(NamedTuple):
+    """Bytes read in one call, and when (``time.monotonic_ns()`` after the read).
+
+    Immutable; a ``NamedTuple`` (see ``lunad.protocol.frame.Frame``): one per read."""
 
     data: bytes
     t_mono_ns: int

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from enum import StrEnum
+from typing import NamedTuple
 
 
 class Status(StrEnum):
@@ -33,9 +33,8 @@ class Zone(StrEnum):
     UNRELIABLE = "unreliable"
 
 
-@dataclass(frozen=True, slots=True)
-class Estimate:
-    """The cleaned reading for one frame.
+class Estimate(NamedTuple):
+    """The cleaned reading for one frame (immutable; a ``NamedTuple``, see ``Frame``).
 
     Attributes:
         range_m: filtered distance in metres, or None when there is no trustworthy estimate.

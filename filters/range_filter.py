@@ -69,19 +69,6 @@ class RangeFilter:
         self._last_accept_ns = 0
         self._have_lux = False
 
-    def step(self, raw_m: float | None, amp: int, t_mono_ns: int) -> Estimate:
-        """Clean one reading.
-
-        Args:
-            raw_m: distance the sensor reported, metres, or None when it reported none.
-            amp: the sensor's signal strength.
-            t_mono_ns: monotonic receive time, nanoseconds.
-
-        Returns:
-            The estimate to publish for this frame.
-        """
-        return self._step(raw_m, amp, t_mono_ns, 0.0)
-
     def step_known_sigma(
         self, raw_m: float | None, amp: int, t_mono_ns: int, sigma_m: float
     ) -> Estimate:
@@ -92,9 +79,23 @@ class RangeFilter:
         the measurement variance differs. ``sigma_m`` excludes the quantisation,
         which is added as in :meth:`step`. The lux estimator is not updated.
         """
-        return self._step(raw_m, amp, t_mono_ns, sigma_m)
+        return self.step(raw_m, amp, t_mono_ns, sigma_m)
 
-    def _step(self, raw_m: float | None, amp: int, t: int, sigma_known: float) -> Estimate:
+    def step(
+        self, raw_m: float | None, amp: int, t_mono_ns: int, sigma_known: float = 0.0
+    ) -> Estimate:
+        """Clean one reading.
+
+        Args:
+            raw_m: distance the sensor reported, metres, or None when it reported none.
+            amp: the sensor's signal strength.
+            t_mono_ns: monotonic receive time, nanoseconds.
+            sigma_known: leave at 0 (the noise is estimated); see ``step_known_sigma``.
+
+        Returns:
+            The estimate to publish for this frame.
+        """
+        t = t_mono_ns
         s = amp * self._inv_amp_ref
         last = self._last_t_ns
         if last is None:
