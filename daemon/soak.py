@@ -55,6 +55,7 @@ from typing import Any
 
 from lunad.daemon.bench import _cpu_ticks
 from lunad.daemon.record import Recorder
+from lunad.daemon.soak_bytes import DAEMON_INPUT, SENSOR_OUTPUT, compare
 from lunad.daemon.source import Chunk
 from lunad.protocol.frame import Frame, encode_frame, temp_raw_from_c
 from lunad.protocol.parser import FrameParser
@@ -68,10 +69,6 @@ RSS_LIMIT_MIB_PER_H = 1.0
 RSS_NOISE_FLOOR_KIB = 256.0  # below this, growth in a short window is allocator noise
 STALL_LIMIT_S = 1.0  # sensor write -> daemon read, while a subscriber is slow
 DRAIN_TIMEOUT_S = 5.0
-DAEMON_INPUT = "daemon-input.lunarec"
-"""With ``--keep-logs``: every byte the daemon read (its ``[source] record``)."""
-SENSOR_OUTPUT = "sensor-output.lunarec"
-"""With ``--keep-logs``: every byte the virtual sensor wrote, stamped when written."""
 MIN_DURATION_S = 50.0
 SHORT_SOAK_S = 120.0  # up to this, the minimum fault durations, one round
 
@@ -721,6 +718,8 @@ class SoakReport:
     daemon_exit_code: int | None = None
     daemon_stop_s: float | None = None
     log_tracebacks: int = 0
+    byte_check: dict[str, Any] = field(default_factory=dict)
+    """With ``--keep-logs``: the two byte recordings compared (``soak_bytes.compare``)."""
     aborted: str = ""
     passed: bool = False
     conditions: dict[str, bool] = field(default_factory=dict)
@@ -1266,6 +1265,7 @@ class Soak:
             self.dev.close()
             if self._sensor_rec is not None:
                 self._sensor_rec.close()
+                self._check_bytes()
             rep.accounting = self.ledger.summary()
             rep.bad_messages = self.sub.bad_messages
             rep.frames_unread = self.dev.frames_unread
@@ -1394,6 +1394,24 @@ class Soak:
         elif self.report.daemon_exit_code is None:
             self.report.daemon_exit_code = proc.returncode
 
+    def _check_bytes(self) -> None:
+        assert self.keep_logs is not None
+        try:
+            check = compare(self.keep_logs)
+        except (OSError, ValueError) as exc:
+            self.report.byte_check = {"error": str(exc)}
+            return
+        self.report.byte_check = {
+            "complete": check.complete,
+            "sensor_bytes": check.sensor_bytes,
+            "daemon_bytes": check.daemon_bytes,
+            "skipped_spans": len(check.skipped),
+            "max_wait_s": round(check.max_wait_s, 4),
+            "p99_wait_s": round(check.p99_wait_s, 4),
+            "frames": check.frames,
+            "summary": check.summary(),
+        }
+
     def _keep(self) -> None:
         if self.keep_logs is None:
             return
@@ -1459,6 +1477,9 @@ def format_report(r: SoakReport) -> str:
             f"the soak's own scheduling lag max "
             f"{lat.get('soak_lag_max', float('nan')) / 1000:.0f} ms"
         )
+    if r.byte_check:
+        b = r.byte_check
+        out.append(f"  byte recordings: {b.get('summary', b.get('error'))}")
     out += [
         "",
         f"faults ({len(r.faults)})",

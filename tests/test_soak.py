@@ -8,13 +8,14 @@ import itertools
 import json
 import threading
 import time
+from pathlib import Path
 from typing import Any
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lunad.daemon import cmd_soak, soak
+from lunad.daemon import cmd_soak, soak, soak_bytes
 from lunad.daemon.soak import FAULT_KINDS, FaultResult, Ledger, Sample, SoakReport
 from lunad.protocol.frame import Frame, encode_frame
 from lunad.protocol.parser import FrameParser
@@ -298,9 +299,12 @@ def test_bad_duration_exits_2(capsys: Any) -> None:
     assert "--duration" in capsys.readouterr().err
 
 
-def test_soak_60s_passes(capsys: Any) -> None:
-    """The CI soak: every fault type exercised and recovered, nothing lost, PASS."""
-    code = cmd_soak.run(_parse("--duration", "60s", "--seed", "0", "--format", "json"))
+def test_soak_60s_passes(capsys: Any, tmp_path: Path) -> None:
+    """The CI soak: every fault type exercised and recovered, nothing lost, PASS; and,
+    independently of the soak's reference parser, the byte recordings agree."""
+    code = cmd_soak.run(
+        _parse("--duration", "60s", "--seed", "0", "--format", "json", "--keep-logs", str(tmp_path))
+    )
     out, err = capsys.readouterr()
     doc = json.loads(out)
     assert "soak schedule: seed 0" in err
@@ -314,6 +318,10 @@ def test_soak_60s_passes(capsys: Any) -> None:
     assert acc["frames_sent"] - acc["eaten_frames"] + acc["false_frames"] == acc["published"]
     assert doc["daemon_exit_code"] == 0 and doc["daemon_died_at_s"] is None
     assert doc["fds"]["end"] <= doc["fds"]["baseline"]
+    check = soak_bytes.compare(tmp_path)  # every byte the sensor wrote, read in order
+    assert check.complete, check.summary()
+    assert check.frames == acc["published"]  # one plain parse of the wire = what was published
+    assert doc["byte_check"]["complete"] and (tmp_path / "report.json").exists()
 
 
 def test_daemon_killed_mid_run_fails() -> None:
@@ -334,3 +342,29 @@ def test_daemon_killed_mid_run_fails() -> None:
     assert not r.passed
     assert not r.conditions["daemon_never_restarted"] and r.daemon_died_at_s is not None
     assert any("exited" in reason for reason in r.reasons)
+
+
+def test_soak_bytes_finds_skipped_and_foreign_bytes(tmp_path: Path) -> None:
+    """The byte check itself: a span the daemon never read, and bytes the sensor never
+    wrote, are both reported; equal streams in any chunking are complete."""
+    from lunad.daemon.record import Recorder
+    from lunad.daemon.source import Chunk
+
+    wire = b"".join(_frame(200 + i, 1000 + i) for i in range(6))
+
+    def record(name: str, chunks: list[tuple[bytes, int]]) -> None:
+        with Recorder(tmp_path / name, "test") as rec:
+            for data, t in chunks:
+                rec(Chunk(data, t))
+
+    record(soak_bytes.SENSOR_OUTPUT, [(wire[:27], 1_000), (wire[27:], 2_000)])
+    record(soak_bytes.DAEMON_INPUT, [(wire[:10], 5_000), (wire[10:], 2_500)])
+    ok = soak_bytes.compare(tmp_path)
+    assert ok.complete and ok.frames == 6 and ok.max_wait_s == 4_000 / 1e9
+
+    (tmp_path / soak_bytes.DAEMON_INPUT).unlink()
+    record(soak_bytes.DAEMON_INPUT, [(wire[:9], 5_000), (wire[18:], 6_000), (b"\xff" * 3, 7_000)])
+    bad = soak_bytes.compare(tmp_path)
+    assert not bad.complete
+    assert bad.skipped == [(0.0, 9)] and bad.unmatched_chunks == 1
+    assert soak_bytes.main([str(tmp_path)]) == 1
