@@ -984,9 +984,11 @@ class Soak:
         elif f.kind == "rate_burst":
             settings = dev.sensor.settings
             t_fast = time.monotonic_ns()
+            sent0 = dev.frames_sent
             dev.sensor.settings = dataclasses.replace(settings, rate_hz=250)
             self._sleep(f.params["fast_s"])
             t_slow = time.monotonic_ns()
+            sent_fast = dev.frames_sent - sent0
             dev.sensor.settings = dataclasses.replace(dev.sensor.settings, rate_hz=1)
             self._sleep(f.params["slow_s"])
             t_end = time.monotonic_ns()
@@ -996,14 +998,20 @@ class Soak:
             n_fast = sum(1 for t in reads if t_fast <= t < t_slow)
             n_slow = sum(1 for t in reads if t_slow <= t < t_end)
             flaps = sum(1 for t, s in self.sub.states if t >= t_slow and s == "waiting")
+            fast_s = (t_slow - t_fast) / NS
             details.update(
-                fps_250=round(n_fast / ((t_slow - t_fast) / NS), 1),
+                fps_250=round(n_fast / fast_s, 1),
+                sensor_fps_250=round(sent_fast / fast_s, 1),
                 fps_1=round(n_slow / ((t_end - t_slow) / NS), 2),
                 waiting_at_1hz=flaps,
             )
-            ok_extra = details["fps_250"] > 200
+            # Keeping up: the daemon read, in the fast window, what the sensor wrote in it
+            # (a starved soak process writes fewer than 250 a second; a frame written
+            # just before the window closes may be read just after it).
+            ok_extra = n_fast >= 0.9 * sent_fast - 5
             note = (
-                f"{details['fps_250']:.0f} fps at 250 Hz, {details['fps_1']:.2f} fps at 1 Hz, "
+                f"{details['fps_250']:.0f} fps read at 250 Hz (the sensor wrote "
+                f"{details['sensor_fps_250']:.0f}/s), {details['fps_1']:.2f} fps at 1 Hz, "
                 f"{flaps} waiting state(s) at 1 Hz"
             )
         elif f.kind == "baud":

@@ -96,3 +96,10 @@ def test_floor_help_runs(argv: list[str]) -> None:
         timeout=30,
     )
     assert out.returncode == 0 and "--device" in out.stdout
+
+
+def test_no_ratio_when_the_floor_measured_nothing() -> None:
+    """A short window on a loaded machine can give the floor 0 CPU ticks: no crash."""
+    assert cmd_bench.ratio(3.0, 1.5) == 2.0
+    assert cmd_bench.ratio(3.0, 0.0) is None
+    assert cmd_bench._x(None).startswith("n/a")
