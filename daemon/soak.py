@@ -864,6 +864,7 @@ class Soak:
         self._slow_started = 0.0
         self._slow_unread0 = 0
         self._lag_max = 0.0  # how late the soak's own ticker woke: its scheduling lag
+        self._sensor_rec: Recorder | None = None  # with keep_logs: the sensor's bytes
         self._lag_window_max = 0.0
 
     # -- helpers --
@@ -1215,7 +1216,6 @@ class Soak:
         self.config = self.work / "soak.toml"
         self.log_path = self.work / "daemon.log"
         on_written = self.ledger.on_written
-        self._sensor_rec: Recorder | None = None
         if self.keep_logs is not None:
             self.keep_logs.mkdir(parents=True, exist_ok=True)
             for name in (DAEMON_INPUT, SENSOR_OUTPUT):
