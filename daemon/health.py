@@ -18,7 +18,10 @@ class State(StrEnum):
 
 
 class Health:
-    """Counts frames and dropouts per interval and builds health messages.
+    """Summarises the daemon's counters per interval as health messages.
+
+    The read loop adds to ``frames`` (every filtered frame) and ``dropouts`` (those
+    whose status is ``dropout``) itself: plain attributes, no call per frame.
 
     Args:
         sensor: the sensor name.
@@ -36,12 +39,6 @@ class Health:
         self._dropouts_mark = 0
         self.frames = 0
         self.dropouts = 0
-
-    def count(self, dropout: bool) -> None:
-        """Note one published frame."""
-        self.frames += 1
-        if dropout:
-            self.dropouts += 1
 
     def message(self, stats: ParserStats, dropped_sends: int, t_mono_ns: int) -> HealthMessage:
         """A health message for the interval since the previous one (which it closes)."""

@@ -62,6 +62,9 @@ class Publisher:
         self._sock.setsockopt(zmq.SNDHWM, sndhwm)
         self._sock.setsockopt(zmq.LINGER, LINGER_MS)
         self._sock.setsockopt(zmq.XPUB_VERBOSE, 1)
+        self._send = super(zmq.Socket, self._sock).send
+        """pyzmq's backend ``send``, past the Python layer of ``zmq.Socket.send``,
+        which only adds the routing_id and group arguments of draft sockets."""
         try:
             self._sock.bind(endpoint)
         except zmq.ZMQError as exc:
@@ -74,10 +77,10 @@ class Publisher:
         Returns False (and counts it) when the socket refused the message.
         """
         self._last[topic] = payload
-        sock = self._sock
+        send = self._send
         try:
-            sock.send(topic, _MORE)
-            sock.send(payload, _NOBLOCK)  # a PUB that took the first part takes the rest
+            send(topic, _MORE)
+            send(payload, _NOBLOCK)  # a PUB that took the first part takes the rest
         except zmq.Again:
             self.dropped_sends += 1
             return False

@@ -34,6 +34,11 @@ class SerialSource(Source):
             )
         except (serial.SerialException, OSError, ValueError) as exc:
             raise SourceOpenError(f"cannot open {device}: {exc}") from exc
+        ser = self._ser
+        self._fds: list[int] | None = (
+            [ser.fd, ser.pipe_abort_read_r] if type(ser) is serial.Serial else None
+        )
+        """The port and pyserial's abort pipe, for ``select``; None for URL ports."""
 
     @classmethod
     def from_config(cls, cfg: SourceSection) -> SerialSource:
@@ -47,19 +52,19 @@ class SerialSource(Source):
         frame; this is two, and still wakes on ``cancel()`` through pyserial's abort
         pipe. ``loop://``, ``socket://`` and ``spy://`` keep the generic path.
         """
-        ser = self._ser
+        fds = self._fds
+        if fds is None:
+            return self._read_generic(timeout_s)
         try:
-            if type(ser) is not serial.Serial:
-                return self._read_generic(timeout_s)
-            abort = ser.pipe_abort_read_r
-            ready, _, _ = select.select([ser.fd, abort], [], [], timeout_s)
+            ready, _, _ = select.select(fds, [], [], timeout_s)
             if not ready:
                 return b""
+            fd, abort = fds
             if abort in ready:
                 os.read(abort, 1000)
-                if ser.fd not in ready:
+                if fd not in ready:
                     return b""  # woken with nothing to read; data first when both are ready
-            data = os.read(ser.fd, 4096)
+            data = os.read(fd, 4096)
             if not data:
                 raise SourceLostError(f"{self.device}: readable but returned no data (unplugged?)")
             return data
@@ -96,6 +101,7 @@ class SerialSource(Source):
 
     def close(self) -> None:
         """Close the port; safe to call twice."""
+        self._fds = None
         try:
             self._ser.close()
         except (OSError, serial.SerialException):

@@ -29,6 +29,7 @@ import signal
 import time
 from collections.abc import Callable
 from pathlib import Path
+from time import monotonic_ns
 from types import FrameType
 from typing import Any
 
@@ -57,6 +58,8 @@ BACKOFF_MAX_S = 2.0
 READ_SLICE_S = 0.25  # longest blocking read; deadlines and wake-ups cut it shorter
 RETRY_LOG_EVERY_S = 60.0  # while a device stays absent, remind the log this often
 NS = 1_000_000_000
+_CONNECTED = State.CONNECTED
+_DROPOUT = Status.DROPOUT
 
 
 class Daemon:
@@ -250,14 +253,16 @@ class Daemon:
         read = src.read
         feed = self.parser.feed
         step = self._step
-        publish = self._publish
+        send = self._send_range
         pub = self.pub
         health = self.health
         assert pub is not None
+        t_mono = monotonic_ns()
         while not (self._stopping or self._reload_requested):
             if pub.pending:
                 pub.pump()  # here, not by leaving: a burst of socket events must not starve reads
-            left = until_ns - time.monotonic_ns()
+                t_mono = monotonic_ns()
+            left = until_ns - t_mono
             if left <= 0:
                 break
             chunk = read(left / NS)
@@ -266,23 +271,25 @@ class Daemon:
                     continue  # woken for a subscription, not a timeout
                 break
             got = True
-            self._last_bytes = t_mono = chunk.t_mono_ns
+            data, t_mono = chunk
+            self._last_bytes = t_mono
             if self.recorder is not None:
                 self.recorder(chunk)
             t_unix = t_mono + self._unix_offset_ns
-            for item in feed(chunk.data, t_mono):
+            for item in feed(data, t_mono):
                 if type(item) is Frame:
-                    publish(item, step(item), t_mono, t_unix)
+                    raw_m = item.distance_m
+                    send(item, raw_m, step(item, raw_m), t_mono, t_unix)
                 else:
                     self._on_reply(item)  # type: ignore[arg-type]
-            if health.state is not State.CONNECTED or self._version_deadline is not None:
+            if health.state is not _CONNECTED or self._version_deadline is not None:
                 break
         return got
 
     def _read_folded(self, src: Source, first_timeout_s: float = 0.0) -> bool:
         """Read all that is waiting, filter every frame, publish the latest only."""
         got = False
-        last: tuple[Frame, Estimate, int] | None = None
+        last: tuple[Frame, float | None, Estimate, int] | None = None
         timeout = first_timeout_s
         while (chunk := src.read(timeout)) is not None:
             timeout = 0.0
@@ -291,42 +298,51 @@ class Daemon:
                 self.recorder(chunk)
             for item in self.parser.feed(chunk.data, chunk.t_mono_ns):
                 if type(item) is Frame:
-                    last = (item, self._step(item), chunk.t_mono_ns)
+                    raw_m = item.distance_m
+                    last = (item, raw_m, self._step(item, raw_m), chunk.t_mono_ns)
                 else:
                     self._on_reply(item)  # type: ignore[arg-type]
-        now = time.monotonic_ns()
+        now = monotonic_ns()
         period = int(NS / (self.cfg.publish.publish_hz or 1.0))
         self._next_publish = max(self._next_publish + period, now)
         if last is not None:
-            frame, est, t_mono = last
-            self._publish(frame, est, t_mono, t_mono + self._unix_offset_ns)
+            frame, raw_m, est, t_mono = last
+            self._send_range(frame, raw_m, est, t_mono, t_mono + self._unix_offset_ns)
         return got
 
-    def _step(self, frame: Frame) -> Estimate:
+    def _step(self, frame: Frame, raw_m: float | None) -> Estimate:
+        """Filter one frame (``raw_m``: its distance, metres) and count it."""
         self.seq += 1
-        est = self.filter.step(frame.distance_m, frame.amp, frame.t_mono_ns)
-        self.health.count(est.status is Status.DROPOUT)
+        est = self.filter.step(raw_m, frame.amp, frame.t_mono_ns)
+        health = self.health
+        health.frames += 1
+        if est.status is _DROPOUT:
+            health.dropouts += 1
         return est
 
-    def _publish(self, frame: Frame, est: Estimate, t_mono_ns: int, t_unix_ns: int) -> None:
-        reasons = self._reasons_json.get(est.reasons)
-        if reasons is None:
-            reasons = self._reasons_json[est.reasons] = reasons_json(est.reasons)
+    def _send_range(
+        self, frame: Frame, raw_m: float | None, est: Estimate, t_mono_ns: int, t_unix_ns: int
+    ) -> None:
+        """Publish ``est`` of ``frame`` (``raw_m``: its distance, metres) as ``range``."""
+        range_m, sigma_m, lux_est, strength, status, reasons, zone = est
+        reasons_js = self._reasons_json.get(reasons)
+        if reasons_js is None:
+            reasons_js = self._reasons_json[reasons] = reasons_json(reasons)
         payload = encode_range(
             self._sensor_json,
             self.seq,
             t_mono_ns,
             t_unix_ns,
-            frame.distance_m,
+            raw_m,
             frame.amp,
             frame.temp_c,
-            est.strength,
-            est.range_m,
-            est.sigma_m,
-            est.lux_est,
-            est.status,  # StrEnum: formats as its value
-            reasons,
-            est.zone,
+            strength,
+            range_m,
+            sigma_m,
+            lux_est,
+            status,  # StrEnum: formats as its value
+            reasons_js,
+            zone,
         )
         self.pub.send(self._range_topic, payload)  # type: ignore[union-attr]
 

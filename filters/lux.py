@@ -45,7 +45,18 @@ def clipped_square_mean(clip_sigmas: float) -> float:
 
 
 class LuxEstimator:
-    """Tracks c = sigma0 + k L from innovations; reports L_hat in lux."""
+    """Tracks c = sigma0 + k L from innovations; reports L_hat in lux.
+
+    Attributes:
+        c2: estimated c^2, m^2 (c: noise at S = 1, unclipped; may be below sigma0^2).
+        c2_zone: the same averaged over ``lux_zone_tau_s``.
+        lux: ambient light estimate, lux, clipped at 0 (time constant ``lux_tau_s``).
+            On a strong return (S near 1) ambient light adds little to the noise, so
+            this spreads by several klux from frame to frame even indoors; see
+            ``lux_zone``.
+        lux_zone: the same from ``c2_zone``, lux: what the zone and the
+            ``high_ambient`` decision use, so that they do not flap on sampling noise.
+    """
 
     __slots__ = (
         "_c2_floor",
@@ -53,11 +64,14 @@ class LuxEstimator:
         "_clip2",
         "_inv_kappa",
         "_k",
+        "_lux_init",
         "_sigma0",
         "_tau_s",
         "_tau_zone_s",
         "c2",
         "c2_zone",
+        "lux",
+        "lux_zone",
     )
 
     def __init__(self, config: FilterConfig) -> None:
@@ -69,34 +83,22 @@ class LuxEstimator:
         self._inv_kappa = 1.0 / clipped_square_mean(config.lux_clip_sigmas)
         c_init = config.sigma0_m + config.k_m_per_lux * config.lux_init
         self._c2_init = c_init * c_init
+        self._lux_init = self._lux_of(self._c2_init)
         self._c2_floor = _C2_FLOOR_FRACTION * config.sigma0_m * config.sigma0_m
-        self.c2 = self._c2_init
-        self.c2_zone = self._c2_init
+        self.reset()
 
     def reset(self) -> None:
         """Back to the configured initial light level."""
         self.c2 = self.c2_zone = self._c2_init
+        self.lux = self.lux_zone = self._lux_init
 
     @property
     def c_m(self) -> float:
         """Estimated noise at S = 1, metres (sigma0 + k L_hat, unclipped)."""
         return math.sqrt(self.c2)
 
-    @property
-    def lux(self) -> float:
-        """Estimated ambient light, lux, clipped at 0 (time constant ``lux_tau_s``).
-
-        On a strong return (S near 1) ambient light adds little to the noise, so this
-        spreads by several klux from frame to frame even indoors; see ``lux_zone``.
-        """
-        lux = (math.sqrt(self.c2) - self._sigma0) / self._k
-        return lux if lux > 0.0 else 0.0
-
-    @property
-    def lux_zone(self) -> float:
-        """The same estimate averaged over ``lux_zone_tau_s``, lux: what the zone and
-        the ``high_ambient`` decision use, so that they do not flap on sampling noise."""
-        lux = (math.sqrt(self.c2_zone) - self._sigma0) / self._k
+    def _lux_of(self, c2: float) -> float:
+        lux = (math.sqrt(c2) - self._sigma0) / self._k
         return lux if lux > 0.0 else 0.0
 
     def update(self, innov_m: float, p_pred_m2: float, s: float, q_m2: float, dt_s: float) -> None:
@@ -112,17 +114,25 @@ class LuxEstimator:
         if dt_s <= 0.0:
             return
         s2 = s * s
-        v = p_pred_m2 + self.c2 / s2 + q_m2
+        c2 = self.c2
+        v = p_pred_m2 + c2 / s2 + q_m2
         e2 = innov_m * innov_m
         lim = self._clip2 * v
         if e2 > lim:
             e2 = lim
         sample = (e2 * self._inv_kappa - p_pred_m2 - q_m2) * s2
         a = dt_s / self._tau_s
-        if a > 0.5:
-            a = 0.5
-        c2 = self.c2 + a * (sample - self.c2)
-        self.c2 = c2 if c2 > self._c2_floor else self._c2_floor
+        c2 += (a if a < 0.5 else 0.5) * (sample - c2)
+        if c2 < self._c2_floor:
+            c2 = self._c2_floor
+        self.c2 = c2
+        lux = (math.sqrt(c2) - self._sigma0) / self._k
+        self.lux = lux if lux > 0.0 else 0.0
+        c2 = self.c2_zone
         a = dt_s / self._tau_zone_s
-        c2 = self.c2_zone + (a if a < 0.5 else 0.5) * (sample - self.c2_zone)
-        self.c2_zone = c2 if c2 > self._c2_floor else self._c2_floor
+        c2 += (a if a < 0.5 else 0.5) * (sample - c2)
+        if c2 < self._c2_floor:
+            c2 = self._c2_floor
+        self.c2_zone = c2
+        lux = (math.sqrt(c2) - self._sigma0) / self._k
+        self.lux_zone = lux if lux > 0.0 else 0.0

@@ -27,6 +27,8 @@ has no band.
 
 from __future__ import annotations
 
+import math
+
 from lunad.filters.config import AMP_AMBIENT, AMP_SATURATED, FilterConfig
 from lunad.filters.estimate import Reason
 
@@ -46,9 +48,8 @@ class DropoutPolicy:
     """
 
     __slots__ = (
-        "_amp_hi",
-        "_amp_min",
-        "_amp_ref",
+        "_amp_strong",
+        "_amp_strong_again",
         "_lux_enter",
         "_lux_exit",
         "_max_feed",
@@ -56,8 +57,6 @@ class DropoutPolicy:
         "_max_m",
         "_min_in",
         "_min_m",
-        "_s_hi",
-        "_s_min",
         "ambient",
         "out_of_range",
         "usable",
@@ -66,11 +65,11 @@ class DropoutPolicy:
 
     def __init__(self, config: FilterConfig) -> None:
         h = config.hysteresis
-        self._amp_min = config.amp_min
-        self._amp_hi = config.amp_min * (1.0 + h)
-        self._amp_ref = config.amp_ref
-        self._s_min = config.s_min
-        self._s_hi = config.s_min * (1.0 + h)
+        inv_amp_ref = 1.0 / config.amp_ref
+        self._amp_strong = first_amp_at_least(config.amp_min, config.s_min, inv_amp_ref)
+        self._amp_strong_again = first_amp_at_least(
+            config.amp_min * (1.0 + h), config.s_min * (1.0 + h), inv_amp_ref
+        )
         self._min_m = config.min_range_m
         self._max_m = config.max_range_m
         self._min_in = config.min_range_m + config.range_hysteresis_m
@@ -87,43 +86,31 @@ class DropoutPolicy:
         self.ambient = False
         self.usable = False
 
-    def gate(self, raw_m: float | None, amp: int, s: float) -> tuple[Reason, ...]:
+    def gate(self, raw_m: float | None, amp: int) -> tuple[Reason, ...]:
         """Reasons this reading is a dropout (empty tuple: publish it).
 
         Args:
             raw_m: reported distance, metres, or None when the sensor reported none.
-            amp: reported signal strength.
-            s: S = amp / amp_ref.
+            amp: reported signal strength (its S = amp / amp_ref is checked through
+                the integer thresholds worked out once in ``__init__``).
         """
-        if amp == AMP_SATURATED:
-            self.usable = False
-            return _SATURATED
         if amp > AMP_AMBIENT:
             self.usable = False
-            return _AMBIENT
-        below = amp < self._amp_min or s < self._s_min
-        if self.weak:
-            weak = amp < self._amp_hi or s < self._s_hi
-        else:
-            weak = below
+            return _SATURATED if amp == AMP_SATURATED else _AMBIENT
+        weak = amp < (self._amp_strong_again if self.weak else self._amp_strong)
         self.weak = weak
         if raw_m is None:
             self.usable = False
             return _WEAK if weak else _OUT
-        outside = raw_m < self._min_m or raw_m > self._max_m
         if self.out_of_range:
             out = raw_m < self._min_in or raw_m > self._max_in
         else:
-            out = outside
+            out = raw_m < self._min_m or raw_m > self._max_m
         self.out_of_range = out
-        self.usable = not below and self._min_m <= raw_m <= self._max_feed
+        self.usable = amp >= self._amp_strong and self._min_m <= raw_m <= self._max_feed
         if weak:
             return _WEAK_OUT if out else _WEAK
         return _OUT if out else NO_REASONS
-
-    def outside(self, range_m: float) -> bool:
-        """Whether a filtered range is outside the published range [min, max], metres."""
-        return range_m < self._min_m or range_m > self._max_m
 
     def high_ambient(self, lux: float) -> bool:
         """Whether the lux estimate says ambient light is high, with hysteresis."""
@@ -132,3 +119,17 @@ class DropoutPolicy:
         else:
             self.ambient = lux > self._lux_enter
         return self.ambient
+
+
+def first_amp_at_least(amp_min: float, s_min: float, inv_amp_ref: float) -> int:
+    """The smallest integer amp that is at least ``amp_min`` and whose S = amp *
+    ``inv_amp_ref`` is at least ``s_min``.
+
+    amp is an integer, so the two thresholds of a gate (on amp and on S) are one
+    integer threshold; searched with the very float product the filter computes S
+    with, so the gate decides exactly as comparing S would.
+    """
+    amp = max(math.ceil(amp_min), math.floor(s_min / inv_amp_ref) - 2, 0)
+    while amp * inv_amp_ref < s_min:
+        amp += 1
+    return amp

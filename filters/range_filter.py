@@ -22,7 +22,7 @@ steps leave a bias that averaging cannot remove).
 
 from __future__ import annotations
 
-import math
+from math import sqrt
 
 from lunad.filters.config import FilterConfig
 from lunad.filters.estimate import Estimate, Reason, Status
@@ -37,6 +37,12 @@ _AMBIENT = (Reason.HIGH_AMBIENT,)
 _NONE: tuple[Reason, ...] = ()
 _STALE = (Reason.STALE,)
 _OUT_OF_RANGE = (Reason.OUT_OF_RANGE,)
+_OK = Status.OK
+_DEGRADED = Status.DEGRADED
+_DROPOUT = Status.DROPOUT
+_new = tuple.__new__
+"""Builds an ``Estimate`` from a tuple without the ``NamedTuple``'s generated Python
+``__new__``: one C call instead of a Python frame, on every frame."""
 
 
 class RangeFilter:
@@ -51,6 +57,8 @@ class RangeFilter:
         self._q_m2 = c.resolution_m * c.resolution_m / 12.0
         self._stale_ns = round(c.stale_after_s * 1e9)
         self._floor = c.sigma_floor_m
+        self._min_m = c.min_range_m
+        self._max_m = c.max_range_m
         self.policy = DropoutPolicy(c)
         self.tracker = Tracker(c.accel_psd, c.gate_sigmas, c.step_confirm, c.init_speed_sigma_m_s)
         self.lux = LuxEstimator(c)
@@ -98,56 +106,56 @@ class RangeFilter:
         t = t_mono_ns
         s = amp * self._inv_amp_ref
         last = self._last_t_ns
+        self._last_t_ns = t
         if last is None:
             self._last_accept_ns = t
             dt = 0.0
         else:
             dt = (t - last) * 1e-9
-        self._last_t_ns = t
         pol = self.policy
         tr = self.tracker
-        reasons = pol.gate(raw_m, amp, s)
+        reasons = pol.gate(raw_m, amp)
         outlier = False
         if pol.usable and raw_m is not None:
-            if sigma_known > 0.0:
-                r = sigma_known * sigma_known + self._q_m2
-            else:
-                r = self.lux.c2 / (s * s) + self._q_m2
-            if not tr.active or t - self._last_accept_ns > self._stale_ns:
-                tr.start(raw_m, r)
-            else:
+            q = self._q_m2
+            r = (sigma_known * sigma_known if sigma_known > 0.0 else self.lux.c2 / (s * s)) + q
+            if tr.active and t - self._last_accept_ns <= self._stale_ns:
                 tr.predict(dt)
                 if sigma_known <= 0.0:
-                    self.lux.update(raw_m - tr.x, tr.p00, s, self._q_m2, dt)
+                    self.lux.update(raw_m - tr.x, tr.p00, s, q, dt)
                     self._have_lux = True
                 outlier = tr.update(raw_m, r) == OUTLIER
+            else:
+                tr.start(raw_m, r)
             if not outlier:
                 self._last_accept_ns = t
         elif tr.active:
             tr.predict(dt)
-        lux = self.lux.lux if self._have_lux else None
-        if not reasons and tr.active and pol.outside(tr.x):
+        if not reasons and tr.active:
+            x = tr.x
+            if self._min_m <= x <= self._max_m:
+                sigma = sqrt(tr.p00)
+                if sigma < self._floor:
+                    sigma = self._floor
+                if self._have_lux:
+                    lux_est = self.lux
+                    lux: float | None = lux_est.lux
+                    lux_zone = lux_est.lux_zone
+                    ambient = pol.high_ambient(lux_zone)
+                else:
+                    lux = None
+                    lux_zone = 0.0
+                    ambient = False
+                zone = self.zones.classify(lux_zone, s, sigma)
+                if outlier:
+                    reasons = _OUTLIER_AMBIENT if ambient else _OUTLIER
+                elif ambient:
+                    reasons = _AMBIENT
+                else:
+                    return _new(Estimate, (x, sigma, lux, s, _OK, _NONE, zone))
+                return _new(Estimate, (x, sigma, lux, s, _DEGRADED, reasons, zone))
             reasons = _OUT_OF_RANGE
-        if reasons or not tr.active:
-            if t - self._last_accept_ns > self._stale_ns:
-                reasons = (*reasons, Reason.STALE) if reasons else _STALE
-            return Estimate(None, None, lux, s, Status.DROPOUT, reasons, self.zones.dropout())
-        sigma = math.sqrt(tr.p00)
-        if sigma < self._floor:
-            sigma = self._floor
-        lux_zone = self.lux.lux_zone if lux is not None else 0.0
-        ambient = pol.high_ambient(lux_zone) if lux is not None else False
-        zone = self.zones.classify(lux_zone, s, sigma)
-        if outlier:
-            return Estimate(
-                tr.x,
-                sigma,
-                lux,
-                s,
-                Status.DEGRADED,
-                _OUTLIER_AMBIENT if ambient else _OUTLIER,
-                zone,
-            )
-        if ambient:
-            return Estimate(tr.x, sigma, lux, s, Status.DEGRADED, _AMBIENT, zone)
-        return Estimate(tr.x, sigma, lux, s, Status.OK, _NONE, zone)
+        lux = self.lux.lux if self._have_lux else None
+        if t - self._last_accept_ns > self._stale_ns:
+            reasons = (*reasons, Reason.STALE) if reasons else _STALE
+        return _new(Estimate, (None, None, lux, s, _DROPOUT, reasons, self.zones.dropout()))

@@ -21,34 +21,50 @@ from __future__ import annotations
 from lunad.filters.config import FilterConfig
 from lunad.filters.estimate import Zone
 
+_STABLE = Zone.STABLE
+_MARGINAL = Zone.MARGINAL
+_UNRELIABLE = Zone.UNRELIABLE
+
 
 class ZoneClassifier:
     """Classifies each estimate; remembers the last zone for hysteresis."""
 
     __slots__ = (
-        "_h",
         "_lux_stable",
+        "_lux_stable_stay",
         "_lux_unrel",
+        "_lux_unrel_leave",
         "_s_stable",
+        "_s_stable_stay",
         "_s_unrel",
+        "_s_unrel_leave",
         "_sig_stable",
+        "_sig_stable_stay",
         "_sig_unrel",
+        "_sig_unrel_leave",
         "zone",
     )
 
     def __init__(self, config: FilterConfig) -> None:
-        self._h = config.zone_hysteresis
+        up = 1.0 + config.zone_hysteresis
+        down = 1.0 - config.zone_hysteresis
         self._lux_stable = config.lux_stable_max
         self._s_stable = config.s_stable_min
         self._sig_stable = config.sigma_stable_max_m
+        self._lux_stable_stay = config.lux_stable_max * up
+        self._s_stable_stay = config.s_stable_min * down
+        self._sig_stable_stay = config.sigma_stable_max_m * up
         self._lux_unrel = config.lux_unreliable
         self._s_unrel = config.s_unreliable
         self._sig_unrel = config.sigma_unreliable_m
-        self.zone = Zone.UNRELIABLE
+        self._lux_unrel_leave = config.lux_unreliable * down
+        self._s_unrel_leave = config.s_unreliable * up
+        self._sig_unrel_leave = config.sigma_unreliable_m * down
+        self.zone = _UNRELIABLE
 
     def reset(self) -> None:
         """Start from ``unreliable``: nothing is known yet."""
-        self.zone = Zone.UNRELIABLE
+        self.zone = _UNRELIABLE
 
     def classify(self, lux: float, s: float, sigma_m: float) -> Zone:
         """Zone of one estimate.
@@ -59,32 +75,29 @@ class ZoneClassifier:
             sigma_m: one-sigma uncertainty of the estimate, metres.
         """
         prev = self.zone
-        up = 1.0 + self._h
-        down = 1.0 - self._h
-        if prev is Zone.UNRELIABLE:
-            unreliable = not (
-                lux < self._lux_unrel * down
-                and s >= self._s_unrel * up
-                and sigma_m <= self._sig_unrel * down
-            )
-        else:
-            unreliable = lux > self._lux_unrel or s < self._s_unrel or sigma_m > self._sig_unrel
-        if unreliable:
-            zone = Zone.UNRELIABLE
-        elif prev is Zone.STABLE:
+        if prev is _UNRELIABLE:
+            if not (
+                lux < self._lux_unrel_leave
+                and s >= self._s_unrel_leave
+                and sigma_m <= self._sig_unrel_leave
+            ):
+                return _UNRELIABLE
+        elif lux > self._lux_unrel or s < self._s_unrel or sigma_m > self._sig_unrel:
+            self.zone = _UNRELIABLE
+            return _UNRELIABLE
+        if prev is _STABLE:
             stable = (
-                lux < self._lux_stable * up
-                and s >= self._s_stable * down
-                and sigma_m <= self._sig_stable * up
+                lux < self._lux_stable_stay
+                and s >= self._s_stable_stay
+                and sigma_m <= self._sig_stable_stay
             )
-            zone = Zone.STABLE if stable else Zone.MARGINAL
         else:
             stable = lux < self._lux_stable and s >= self._s_stable and sigma_m <= self._sig_stable
-            zone = Zone.STABLE if stable else Zone.MARGINAL
+        zone = _STABLE if stable else _MARGINAL
         self.zone = zone
         return zone
 
     def dropout(self) -> Zone:
         """Zone of a frame without an estimate (always unreliable)."""
-        self.zone = Zone.UNRELIABLE
-        return Zone.UNRELIABLE
+        self.zone = _UNRELIABLE
+        return _UNRELIABLE

@@ -6,12 +6,13 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from lunad.filters import DropoutPolicy, FilterConfig, Reason
+from lunad.filters.policy import first_amp_at_least
 
 CFG = FilterConfig()
 
 
 def gate(policy: DropoutPolicy, raw_m: float | None, amp: int) -> tuple[Reason, ...]:
-    return policy.gate(raw_m, amp, amp / CFG.amp_ref)
+    return policy.gate(raw_m, amp)
 
 
 def test_clean_reading_passes_and_is_usable() -> None:
@@ -37,7 +38,8 @@ def test_each_hard_gate_names_its_reason() -> None:
 def test_s_min_applies_when_amp_ref_makes_it_stricter_than_amp_min() -> None:
     cfg = FilterConfig(amp_ref=4000.0)  # S_min 0.05 -> amp 200
     p = DropoutPolicy(cfg)
-    assert p.gate(2.0, 150, 150 / 4000.0) == (Reason.WEAK_SIGNAL,)
+    assert p.gate(2.0, 150) == (Reason.WEAK_SIGNAL,)
+    assert DropoutPolicy(cfg).gate(2.0, 205) == ()
 
 
 def test_weak_band_holds_until_amp_clears_the_hysteresis() -> None:
@@ -84,3 +86,20 @@ def test_high_ambient_has_hysteresis() -> None:
     assert p.high_ambient(21_000.0)
     assert p.high_ambient(19_000.0), "inside the band: stays high"
     assert not p.high_ambient(17_000.0)
+
+
+@given(
+    st.floats(min_value=1.0, max_value=60_000.0),
+    st.floats(min_value=1e-4, max_value=2.0),
+    st.floats(min_value=0.0, max_value=5000.0),
+    st.integers(min_value=0, max_value=0xFFFF),
+)
+def test_integer_threshold_decides_as_comparing_s(
+    amp_ref: float, s_min: float, amp_min: float, amp: int
+) -> None:
+    inv = 1.0 / amp_ref
+    t = first_amp_at_least(amp_min, s_min, inv)
+    for a in (amp, t - 2, t - 1, t, t + 1):
+        if a >= 0:
+            strong = not (a < amp_min or a * inv < s_min)
+            assert (a >= t) == strong, (a, t)

@@ -153,6 +153,19 @@ def test_any_interleaving_yields_exactly_the_valid_frames(
 
 
 @settings(max_examples=300, deadline=None)
+@given(st.lists(piece, max_size=40))
+def test_one_read_per_piece_equals_one_parse(pieces: list[tuple[str, bytes]]) -> None:
+    """A read that holds exactly one frame (the usual case at 250 Hz) takes the parser's
+    short cut; it must give what one parse of the whole stream gives, counters too."""
+    p = FrameParser()
+    out = [x for _, b in pieces for x in p.feed(b, 0)]
+    whole = FrameParser()
+    data = b"".join(b for _, b in pieces)
+    assert [_key(x) for x in out] == [_key(x) for x in whole.feed(data, 0)]
+    assert p.stats == whole.stats
+
+
+@settings(max_examples=300, deadline=None)
 @given(st.binary(max_size=600), st.lists(st.integers(0, 10_000), max_size=40))
 def test_arbitrary_bytes_never_raise_and_counters_add_up(data: bytes, cuts: list[int]) -> None:
     out, p = feed_chunks(data, cuts)
