@@ -116,6 +116,60 @@ def floor_main(argv: list[str] | None = None) -> int:
         ctx.term()
 
 
+def receiver_main(argv: list[str] | None = None) -> int:
+    """The bench's subscriber, in a process of its own so that its receive times do
+    not wait for the GIL of the process that plays the sensor.
+
+    Run as ``python -m lunad.daemon.bench receive --connect ENDPOINT --out FILE``.
+    Prints the monotonic time of the first message on stdout; on SIGTERM writes
+    every message's ``seq`` and receive time (``time.monotonic_ns()``, the same
+    clock the sensor's send times use) to FILE as int64 pairs, and exits 0.
+    """
+    import argparse
+    import array
+    import signal
+    import time
+
+    import zmq
+
+    p = argparse.ArgumentParser(prog="python -m lunad.daemon.bench receive")
+    p.add_argument("--connect", required=True)
+    p.add_argument("--out", required=True)
+    args = p.parse_args(argv)
+
+    def stop(_signum: int, _frame: Any) -> None:
+        raise SystemExit(0)
+
+    signal.signal(signal.SIGTERM, stop)
+    ctx = zmq.Context()
+    sub = ctx.socket(zmq.SUB)
+    sub.setsockopt(zmq.RCVHWM, 0)
+    sub.setsockopt(zmq.RECONNECT_IVL, 5)
+    sub.setsockopt(zmq.LINGER, 0)
+    sub.setsockopt(zmq.SUBSCRIBE, b"range/")
+    sub.connect(args.connect)
+    records = array.array("q")
+    recv = sub.recv_multipart
+    mono = time.monotonic_ns
+    try:
+        parts = recv()
+        t = mono()
+        records.extend((_seq_of(parts[1]), t))
+        print(t, flush=True)
+        while True:
+            parts = recv()
+            t = mono()
+            records.extend((_seq_of(parts[1]), t))
+    except SystemExit:
+        pass
+    finally:
+        with open(args.out, "wb") as f:
+            records.tofile(f)
+        sub.close()
+        ctx.term()
+    return 0
+
+
 # -- results ---------------------------------------------------------------------
 
 
@@ -398,15 +452,15 @@ def run_serve_once(
     idle_settle_s: float = 1.5,
     idle_s: float = 3.0,
 ) -> ServeRun:
-    """One run: a fresh virtual sensor at 250 Hz, ``variant`` ('lunad' or 'floor')
-    as a subprocess, a SUB socket in this process timing every message."""
+    """One run: a fresh virtual sensor at 250 Hz in this process, ``variant``
+    ('lunad' or 'floor') as a subprocess, and ``receiver_main`` as another, timing
+    every message."""
+    import array
+    import select
     import signal
     import subprocess
-    import threading
     import time
     from pathlib import Path
-
-    import zmq
 
     from lunad.sim.physics import Truth
     from lunad.sim.pty_device import PtyDevice
@@ -420,39 +474,13 @@ def run_serve_once(
         if index == len(sent):
             sent.append(t_ns)
 
-    recv_seq: list[int] = []
-    recv_t: list[int] = []
-    first = threading.Event()
-    stop = threading.Event()
-    ctx = zmq.Context()
-    sub = ctx.socket(zmq.SUB)
-    sub.setsockopt(zmq.RCVHWM, 0)
-    sub.setsockopt(zmq.RECONNECT_IVL, 5)
-    sub.setsockopt(zmq.LINGER, 0)
-    sub.setsockopt(zmq.SUBSCRIBE, b"range/")
-    sub.connect(endpoint)
-
-    def receive() -> None:
-        poller = zmq.Poller()
-        poller.register(sub, zmq.POLLIN)
-        mono = time.monotonic_ns
-        while not stop.is_set():
-            if not poller.poll(100):
-                continue
-            while True:
-                try:
-                    parts = sub.recv_multipart(zmq.NOBLOCK)
-                except zmq.Again:
-                    break
-                t = mono()
-                recv_seq.append(_seq_of(parts[1]))
-                recv_t.append(t)
-                first.set()
-
-    old_switch = sys.getswitchinterval()
-    sys.setswitchinterval(0.0002)  # the receiver must not wait 5 ms for the GIL
-    receiver = threading.Thread(target=receive, name="bench-sub", daemon=True)
-    receiver.start()
+    out_path = work / f"{tag}.recv"
+    receiver = subprocess.Popen(
+        [sys.executable, "-m", "lunad.daemon.bench", "receive", "--connect", endpoint,
+         "--out", str(out_path)],
+        stdout=subprocess.PIPE,
+    )  # fmt: skip
+    assert receiver.stdout is not None
     dev = PtyDevice(
         truth=Truth(2.0, 0.8, 10.0, 100.0),
         rate_hz=250,
@@ -471,9 +499,11 @@ def run_serve_once(
                 stderr=subprocess.STDOUT,
                 env={**os.environ, "PYTHONUNBUFFERED": "1"},
             )
-            if not first.wait(15.0):
+            ready, _, _ = select.select([receiver.stdout], [], [], 15.0)
+            line = receiver.stdout.readline() if ready else b""
+            if not line:
                 raise RuntimeError(f"{variant}: no message within 15 s; see {log_path}")
-            startup_s = (recv_t[0] - t_spawn) / 1e9
+            startup_s = (int(line) - t_spawn) / 1e9
             time.sleep(warmup_s)
             c0, t0, n0 = _cpu_ticks(proc.pid), time.monotonic_ns(), len(sent)
             time.sleep(duration_s)
@@ -493,12 +523,18 @@ def run_serve_once(
         if proc is not None and proc.poll() is None:
             proc.kill()
             proc.wait()
-        stop.set()
-        receiver.join(2.0)
-        sys.setswitchinterval(old_switch)
+        receiver.terminate()
+        try:
+            receiver.wait(5.0)
+        except subprocess.TimeoutExpired:
+            receiver.kill()
+            receiver.wait()
+        receiver.stdout.close()
         dev.close()
-        sub.close()
-        ctx.term()
+    records = array.array("q")
+    with open(out_path, "rb") as f:
+        records.frombytes(f.read())
+    recv_seq, recv_t = records[0::2], records[1::2]
     seen: set[int] = set()
     lat: list[int] = []
     received = 0
@@ -587,4 +623,6 @@ def bench_serve(
 
 
 if __name__ == "__main__":
+    if sys.argv[1:2] == ["receive"]:
+        sys.exit(receiver_main(sys.argv[2:]))
     sys.exit(floor_main())

@@ -107,9 +107,7 @@ def encode_range(
     Args:
         sensor_json: the sensor name already JSON-encoded (with quotes), done once.
         reasons_json: the reasons list already JSON-encoded, e.g. ``'["weak_signal"]'``.
-        Everything else as in ``RangeMessage``. Metres are rounded to 0.1 mm (sigma
-        to 0.01 mm), temperature to 0.001 degC, strength to 1e-5, lux to 0.1 lux,
-        half away from zero (see ``fixed``).
+        Everything else as in ``RangeMessage``; metres are rounded to 0.1 mm (sigma to 0.01 mm).
     """
     return (
         _RANGE_JSON
@@ -118,13 +116,13 @@ def encode_range(
             seq,
             t_mono_ns,
             t_unix_ns,
-            fixed(raw_m, 10_000, "%d.%04d"),
+            "null" if raw_m is None else f"{raw_m:.4f}",
             amp,
-            fixed(temp_c, 1_000, "%d.%03d"),
-            fixed(strength, 100_000, "%d.%05d"),
-            fixed(range_m, 10_000, "%d.%04d"),
-            fixed(sigma_m, 100_000, "%d.%05d"),
-            fixed(lux_est, 10, "%d.%d"),
+            temp_c,
+            strength,
+            "null" if range_m is None else f"{range_m:.4f}",
+            "null" if sigma_m is None else f"{sigma_m:.5f}",
+            "null" if lux_est is None else f"{lux_est:.1f}",
             status,
             reasons_json,
             zone,
@@ -134,39 +132,13 @@ def encode_range(
 
 _RANGE_JSON = (
     '{"v":1,"sensor":%s,"seq":%d,"t_mono_ns":%d,"t_unix_ns":%d,"raw_m":%s,"amp":%d,'
-    '"temp_c":%s,"strength":%s,"range_m":%s,"sigma_m":%s,"lux_est":%s,'
+    '"temp_c":%.3f,"strength":%.5f,"range_m":%s,"sigma_m":%s,"lux_est":%s,'
     '"status":"%s","reasons":%s,"zone":"%s"}'
 )
-
-_FIXED_LIMIT = 2.0**52  # beyond, x * scale has no fraction left to round
-
-
-def fixed(x: float | None, scale: int, fmt: str) -> str:
-    """``x`` as a JSON number with a fixed number of decimals, or ``null``.
-
-    Args:
-        x: the value; None, NaN and infinities give ``null`` (still valid JSON).
-        scale: 10 ** decimals.
-        fmt: ``"%d.%0Nd"`` for N decimals (``"%d.%d"`` for one).
-
-    Rounds x * scale half away from zero with integer arithmetic: on the daemon's
-    hot path that costs a fraction of what ``"%.4f" % x`` does, whose
-    float-to-decimal conversion is the most expensive code a frame runs
-    (measured in place, docs/performance.md). The result is within half a unit of
-    the last decimal of x (plus the double's own rounding error) and equals
-    ``round(x, N)`` unless x lies within that rounding error of a decimal tie;
-    ``tests/test_messages.py`` checks both.
-    """
-    if x is None:
-        return "null"
-    q = x * scale
-    if 0.0 <= q < _FIXED_LIMIT:
-        i = int(q + 0.5)
-        return fmt % (i // scale, i % scale)
-    if -_FIXED_LIMIT < q < 0.0:
-        i = int(0.5 - q)
-        return "-" + fmt % (i // scale, i % scale)
-    return "null"
+"""One ``%`` format for the whole message: about 2.5x faster than an f-string of
+``repr(round(x, n))`` calls (``lunad bench``, line "pipeline"). Fixed decimals
+(``1.9800``) parse to the same float as ``round(x, 4)``; ``tests/test_messages.py``
+checks that on random values."""
 
 
 def encode_health(msg: HealthMessage) -> bytes:
