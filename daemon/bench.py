@@ -451,10 +451,12 @@ def run_serve_once(
     duration_s: float = 10.0,
     idle_settle_s: float = 1.5,
     idle_s: float = 3.0,
+    pin: bool = False,
 ) -> ServeRun:
     """One run: a fresh virtual sensor at 250 Hz in this process, ``variant``
     ('lunad' or 'floor') as a subprocess, and ``receiver_main`` as another, timing
-    every message."""
+    every message. ``pin``: the process under test on the last CPU, this process and
+    the receiver on the others (``cpu_split``)."""
     import array
     import select
     import signal
@@ -474,6 +476,10 @@ def run_serve_once(
         if index == len(sent):
             sent.append(t_ns)
 
+    split = cpu_split() if pin else None
+    old_affinity = os.sched_getaffinity(0)
+    if split is not None:
+        os.sched_setaffinity(0, split[0])
     out_path = work / f"{tag}.recv"
     receiver = subprocess.Popen(
         [sys.executable, "-m", "lunad.daemon.bench", "receive", "--connect", endpoint,
@@ -499,11 +505,16 @@ def run_serve_once(
                 stderr=subprocess.STDOUT,
                 env={**os.environ, "PYTHONUNBUFFERED": "1"},
             )
+            if split is not None:
+                os.sched_setaffinity(proc.pid, split[1])
             ready, _, _ = select.select([receiver.stdout], [], [], 15.0)
             line = receiver.stdout.readline() if ready else b""
             if not line:
                 raise RuntimeError(f"{variant}: no message within 15 s; see {log_path}")
             startup_s = (int(line) - t_spawn) / 1e9
+            if split is not None:  # threads started before the first call inherited {0}
+                for tid in os.listdir(f"/proc/{proc.pid}/task"):
+                    os.sched_setaffinity(int(tid), split[1])
             time.sleep(warmup_s)
             c0, t0, n0 = _cpu_ticks(proc.pid), time.monotonic_ns(), len(sent)
             time.sleep(duration_s)
@@ -531,6 +542,7 @@ def run_serve_once(
             receiver.wait()
         receiver.stdout.close()
         dev.close()
+        os.sched_setaffinity(0, old_affinity)
     records = array.array("q")
     with open(out_path, "rb") as f:
         records.frombytes(f.read())
@@ -561,6 +573,15 @@ def run_serve_once(
         exit_code=code,
         log_tail=log_path.read_text(errors="replace")[-2000:] if code else "",
     )
+
+
+def cpu_split() -> tuple[set[int], set[int]] | None:
+    """(CPUs for the bench and its receiver, the CPU for the process under test), or
+    None with fewer than two CPUs to run on."""
+    cpus = sorted(os.sched_getaffinity(0))
+    if len(cpus) < 2:
+        return None
+    return set(cpus[:-1]), {cpus[-1]}
 
 
 def _median(xs: list[float]) -> float:
@@ -595,6 +616,7 @@ def bench_serve(
     idle_s: float = 3.0,
     publish_hz: float = 50.0,
     progress: Any = None,
+    pin: bool = False,
 ) -> dict[str, ServeSummary]:
     """Alternate lunad (every frame), the floor and lunad ``--publish-hz`` for ``rounds``.
 
@@ -615,6 +637,7 @@ def bench_serve(
                     warmup_s=warmup_s,
                     duration_s=duration_s,
                     idle_s=idle_s,
+                    pin=pin,
                 )
                 runs[key].append(run)
                 if progress is not None:

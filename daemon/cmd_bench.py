@@ -29,6 +29,7 @@ examples:
   lunad bench --quick                 # short windows, one round (smoke test)
   lunad bench --format json > bench.json
   lunad bench --rounds 5 --duration 20
+  lunad bench --pin                   # process under test alone on the last CPU
   python -m lunad.daemon.bench --device /dev/serial0 --publish tcp://127.0.0.1:7790
                                       # the floor loop alone
 """
@@ -68,6 +69,12 @@ def add_parser(sub: Any) -> None:
     p.add_argument(
         "--publish-hz", type=float, default=50.0, metavar="N", help="low-power rate (default 50)"
     )
+    p.add_argument(
+        "--pin",
+        action="store_true",
+        help="run the process under test on the last CPU and the sensor and subscriber on "
+        "the others: steadier ratios on a shared machine (needs 2 CPUs or more)",
+    )
     p.set_defaults(func=run)
 
 
@@ -99,6 +106,7 @@ def run(args: argparse.Namespace) -> int:
         idle_s=1.0 if quick else 3.0,
         publish_hz=args.publish_hz,
         progress=log.info,
+        pin=bool(args.pin),
     )
     lunad, floor, low = serve["lunad"], serve["floor"], serve["lunad_hz"]
     ratios = {

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 from typing import Any
@@ -103,3 +104,16 @@ def test_no_ratio_when_the_floor_measured_nothing() -> None:
     assert cmd_bench.ratio(3.0, 1.5) == 2.0
     assert cmd_bench.ratio(3.0, 0.0) is None
     assert cmd_bench._x(None).startswith("n/a")
+
+
+def test_cpu_split_gives_the_process_under_test_a_cpu_of_its_own() -> None:
+    from lunad.daemon.bench import cpu_split
+
+    cpus = os.sched_getaffinity(0)
+    split = cpu_split()
+    if len(cpus) < 2:
+        assert split is None
+        return
+    assert split is not None
+    ours, theirs = split
+    assert theirs == {max(cpus)} and ours | theirs == cpus and not ours & theirs
