@@ -46,6 +46,17 @@ OUTPUT_ON = bytes((0x5A, 0x05, 0x07, 0x01, (0x5A + 0x05 + 0x07 + 0x01) & 0xFF))
 # -- the floor reference loop ------------------------------------------------------
 
 
+def _exit_on(*signums: int) -> None:
+    """Make these signals raise SystemExit(0) in the main thread (clean exit, finally runs)."""
+    import signal
+
+    def stop(_signum: int, _frame: Any) -> None:
+        raise SystemExit(0)
+
+    for signum in signums:
+        signal.signal(signum, stop)
+
+
 def floor_main(argv: list[str] | None = None) -> int:
     """The floor: read the tty with blocking reads, check checksums, publish each frame.
 
@@ -65,11 +76,7 @@ def floor_main(argv: list[str] | None = None) -> int:
     p.add_argument("--publish", required=True)
     args = p.parse_args(argv)
 
-    def stop(_signum: int, _frame: Any) -> None:
-        raise SystemExit(0)
-
-    signal.signal(signal.SIGTERM, stop)
-    signal.signal(signal.SIGINT, stop)
+    _exit_on(signal.SIGTERM, signal.SIGINT)
 
     ctx = zmq.Context()
     sock = ctx.socket(zmq.PUB)
@@ -137,10 +144,7 @@ def receiver_main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", required=True)
     args = p.parse_args(argv)
 
-    def stop(_signum: int, _frame: Any) -> None:
-        raise SystemExit(0)
-
-    signal.signal(signal.SIGTERM, stop)
+    _exit_on(signal.SIGTERM)
     ctx = zmq.Context()
     sub = ctx.socket(zmq.SUB)
     sub.setsockopt(zmq.RCVHWM, 0)
