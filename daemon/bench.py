@@ -197,6 +197,8 @@ class PipelineResult:
     filter_us: float
     encode_us: float
     total_us: float
+    reference_filter_us: float
+    """``ReferenceFilter``, the same filter composed from its pieces, on the same frames."""
 
 
 @dataclass
@@ -321,7 +323,7 @@ def bench_pipeline(n_frames: int = 50_000) -> PipelineResult:
     """Parse, filter and encode ``n_frames`` frames fed one at a time (as at 250 Hz)."""
     import time
 
-    from lunad.filters import RangeFilter
+    from lunad.filters import RangeFilter, ReferenceFilter
     from lunad.protocol.frame import Frame
     from lunad.protocol.messages import encode_range, reasons_json
     from lunad.protocol.parser import FrameParser
@@ -341,6 +343,11 @@ def bench_pipeline(n_frames: int = 50_000) -> PipelineResult:
     t0 = time.perf_counter()
     ests = [filt.step(f.distance_m, f.amp, f.t_mono_ns) for f in frames]
     filter_s = time.perf_counter() - t0
+    ref = ReferenceFilter()
+    t0 = time.perf_counter()
+    for f in frames:
+        ref.step(f.distance_m, f.amp, f.t_mono_ns)
+    reference_s = time.perf_counter() - t0
 
     rcache: dict[tuple[str, ...], str] = {}
     t0 = time.perf_counter()
@@ -397,7 +404,9 @@ def bench_pipeline(n_frames: int = 50_000) -> PipelineResult:
             seq += 1
     total_s = time.perf_counter() - t0
     us = 1e6 / n_frames
-    return PipelineResult(n_frames, parse_s * us, filter_s * us, encode_s * us, total_s * us)
+    return PipelineResult(
+        n_frames, parse_s * us, filter_s * us, encode_s * us, total_s * us, reference_s * us
+    )
 
 
 # -- 3. serve end to end -------------------------------------------------------------

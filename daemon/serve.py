@@ -103,6 +103,8 @@ class Daemon:
         if cfg.filter != self.cfg.filter:
             self.filter = RangeFilter(cfg.filter.to_filter_config())
         self.cfg = cfg
+        self._frame_period_ns = int(NS / cfg.sensor.frame_rate_hz)
+        self._publish_period_ns = int(NS / (cfg.publish.publish_hz or cfg.sensor.frame_rate_hz))
         self._waiting_after_ns = int(
             max(WAITING_AFTER_S, WAITING_PERIODS / cfg.sensor.frame_rate_hz) * NS
         )
@@ -207,17 +209,12 @@ class Daemon:
             if src.exhausted:
                 log.info("end of %s", src)
                 break
+            until = min(now + int(READ_SLICE_S * NS), *deadlines)
             try:
                 if self.cfg.publish.publish_hz:
-                    if self.health.state is State.CONNECTED:
-                        deadlines.append(self._next_publish)
-                        self._sleep_until(min(deadlines), now)
-                        got = self._read_folded(src)
-                    else:  # silent sensor: block in the read, no wake-ups at publish_hz
-                        slice_ns = min(READ_SLICE_S * NS, max(0, min(deadlines) - now))
-                        got = self._read_folded(src, slice_ns / NS)
+                    got = self._read_folded(src, until)
                 else:
-                    got = self._read_each(src, min(now + int(READ_SLICE_S * NS), *deadlines))
+                    got = self._read_each(src, until)
             except SourceLostError as exc:
                 if self._stopping:
                     break
@@ -279,41 +276,84 @@ class Daemon:
             for item in feed(data, t_mono):
                 if type(item) is Frame:
                     raw_m = item.distance_m
-                    send(item, raw_m, step(item, raw_m), t_mono, t_unix)
+                    send(item, raw_m, step(item, raw_m, t_mono), t_mono, t_unix)
                 else:
                     self._on_reply(item)  # type: ignore[arg-type]
             if health.state is not _CONNECTED or self._version_deadline is not None:
                 break
         return got
 
-    def _read_folded(self, src: Source, first_timeout_s: float = 0.0) -> bool:
-        """Read all that is waiting, filter every frame, publish the latest only."""
+    def _read_folded(self, src: Source, until_ns: int) -> bool:
+        """Low-power inner loop (``publish_hz``): filter every frame, publish the latest.
+
+        While the sensor streams, it sleeps until each publish time, takes what the
+        port holds (about ``frame_rate / publish_hz`` frames) in one read, filters every
+        frame and publishes only the last; at ``until_ns`` it reads and filters too, so
+        a slow ``publish_hz`` cannot let the port's buffer overflow. The frames of one
+        read arrived a frame period apart, so the filter gets them spaced so, ending at
+        the read time (their messages keep the read time, the contract's
+        ``t_mono_ns``); stamped all alike, the filter would see 4 of 5 frames at
+        ``dt = 0`` and the lux estimate would learn from one in five. While the
+        sensor is silent it blocks in the read instead: no wake-ups at ``publish_hz``.
+        Returns to the housekeeping loop at ``until_ns`` or as ``_read_each`` does.
+        """
         got = False
-        last: tuple[Frame, float | None, Estimate, int] | None = None
-        timeout = first_timeout_s
-        while (chunk := src.read(timeout)) is not None:
-            timeout = 0.0
-            got = True
-            if self.recorder is not None:
-                self.recorder(chunk)
-            for item in self.parser.feed(chunk.data, chunk.t_mono_ns):
-                if type(item) is Frame:
-                    raw_m = item.distance_m
-                    last = (item, raw_m, self._step(item, raw_m), chunk.t_mono_ns)
-                else:
-                    self._on_reply(item)  # type: ignore[arg-type]
-        now = monotonic_ns()
-        period = int(NS / (self.cfg.publish.publish_hz or 1.0))
-        self._next_publish = max(self._next_publish + period, now)
-        if last is not None:
-            frame, raw_m, est, t_mono = last
-            self._send_range(frame, raw_m, est, t_mono, t_mono + self._unix_offset_ns)
+        pub = self.pub
+        health = self.health
+        assert pub is not None
+        wait = self._wake.wait
+        feed = self.parser.feed
+        step = self._step
+        period = self._publish_period_ns
+        spacing = self._frame_period_ns
+        while not (self._stopping or self._reload_requested):
+            if pub.pending:
+                pub.pump()
+            now = monotonic_ns()
+            if health.state is _CONNECTED:
+                due = self._next_publish
+                tick = due if due < until_ns else until_ns
+                if tick > now and wait((tick - now) / NS):
+                    continue  # woken for a stop, a reload or a subscription
+                chunk = src.read(0.0)
+                now = monotonic_ns()
+            elif until_ns > now:
+                chunk = src.read((until_ns - now) / NS)
+                now = monotonic_ns()
+            else:
+                break
+            publish = now >= self._next_publish
+            if publish:
+                self._next_publish = max(self._next_publish + period, now)
+            if chunk is not None:
+                got = True
+                data, t_mono = chunk
+                self._last_bytes = t_mono
+                if self.recorder is not None:
+                    self.recorder(chunk)
+                last: tuple[Frame, float | None, Estimate] | None = None
+                items = feed(data, t_mono)
+                k = len(items)
+                for item in items:
+                    k -= 1
+                    if type(item) is Frame:
+                        raw_m = item.distance_m
+                        last = (item, raw_m, step(item, raw_m, t_mono - k * spacing))
+                    else:
+                        self._on_reply(item)  # type: ignore[arg-type]
+                if last is not None and publish:
+                    self._send_range(*last, t_mono, t_mono + self._unix_offset_ns)
+                if health.state is not _CONNECTED or self._version_deadline is not None:
+                    break
+            if now >= until_ns:
+                break
         return got
 
-    def _step(self, frame: Frame, raw_m: float | None) -> Estimate:
-        """Filter one frame (``raw_m``: its distance, metres) and count it."""
+    def _step(self, frame: Frame, raw_m: float | None, t_mono_ns: int) -> Estimate:
+        """Filter one frame (``raw_m``: its distance, metres; taken at ``t_mono_ns``)
+        and count it."""
         self.seq += 1
-        est = self.filter.step(raw_m, frame.amp, frame.t_mono_ns)
+        est = self.filter.step(raw_m, frame.amp, t_mono_ns)
         health = self.health
         health.frames += 1
         if est.status is _DROPOUT:

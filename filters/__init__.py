@@ -6,6 +6,7 @@ from lunad.filters.kalman import ACCEPTED, OUTLIER, RESTARTED, Tracker
 from lunad.filters.lux import LuxEstimator
 from lunad.filters.policy import DropoutPolicy
 from lunad.filters.range_filter import RangeFilter
+from lunad.filters.reference import ReferenceFilter
 from lunad.filters.zone import ZoneClassifier
 
 __all__ = [
@@ -19,6 +20,7 @@ __all__ = [
     "LuxEstimator",
     "RangeFilter",
     "Reason",
+    "ReferenceFilter",
     "Status",
     "Tracker",
     "Zone",

@@ -33,7 +33,7 @@ import math
 
 from lunad.filters.config import FilterConfig
 
-_C2_FLOOR_FRACTION = 0.01  # c_hat never below sigma0 / 10: keeps R positive and learnable
+C2_FLOOR_FRACTION = 0.01  # c_hat never below sigma0 / 10: keeps R positive and learnable
 
 
 def clipped_square_mean(clip_sigmas: float) -> float:
@@ -84,7 +84,7 @@ class LuxEstimator:
         c_init = config.sigma0_m + config.k_m_per_lux * config.lux_init
         self._c2_init = c_init * c_init
         self._lux_init = self._lux_of(self._c2_init)
-        self._c2_floor = _C2_FLOOR_FRACTION * config.sigma0_m * config.sigma0_m
+        self._c2_floor = C2_FLOOR_FRACTION * config.sigma0_m * config.sigma0_m
         self.reset()
 
     def reset(self) -> None:

@@ -1,45 +1,42 @@
-"""The per-frame cleaning pipeline: gates, adaptive Kalman filter, lux estimate, zone.
+"""The per-frame cleaning pipeline the daemon runs, as one flat function.
 
-How this works, per frame (DESIGN.md "Data flow of one reading"):
+It computes exactly what ``ReferenceFilter`` (reference.py) computes from the
+documented pieces: the gates with hysteresis (policy.py), the constant-velocity
+Kalman filter with its innovation gate and step confirmation (kalman.py), the lux
+estimator (lux.py) and the zone (zone.py). Read those for the model and the paper's
+equations; this module only inlines them. tests/test_filters_equivalence.py checks
+that both give equal estimates, float for float, on every built-in scenario at three
+noise scales and in all three noise modes.
 
-1. S = amp / amp_ref (paper eq. 1, with amp_ref from calibration).
-2. Hard gates with hysteresis (policy.py) -> ``dropout``. A reading inside a
-   hysteresis band, or a little beyond the range, is still fed to the filter, only
-   not published; an estimate outside the range is not published either.
-3. Constant-velocity Kalman filter (kalman.py). Each reading's variance is
-   r = ((sigma0 + k L_hat) / S)^2 + resolution^2 / 12: the paper's eqs 2-3 with
-   the lux estimate in place of the unknown L, plus the 1 cm quantisation
-   (our addition; it dominates at high S). The innovation gate marks isolated
-   spikes ``outlier``: the frame publishes the prediction, ``degraded``.
-4. Lux estimator (lux.py) learns sigma0 + k L from the same innovations.
-5. ``stale`` when no reading has been accepted for ``stale_after_s``; the next
-   accepted reading then restarts the track.
-6. Zone (zone.py) from L_hat, S and the published sigma.
-
-The published sigma is sqrt(P00), floored at ``sigma_floor_m`` (the 1 cm output
-steps leave a bias that averaging cannot remove).
+Why flat: at 250 Hz on a slow CPU each method call and attribute hop costs more than
+the arithmetic (docs/performance.md, "Session 4"). One function holding the whole
+state on one object runs about half the bytecodes of the composed form.
 """
 
 from __future__ import annotations
 
 from math import sqrt
 
-from lunad.filters.config import FilterConfig
-from lunad.filters.estimate import Estimate, Reason, Status
-from lunad.filters.kalman import OUTLIER, Tracker
-from lunad.filters.lux import LuxEstimator
-from lunad.filters.policy import DropoutPolicy
-from lunad.filters.zone import ZoneClassifier
+from lunad.filters.config import AMP_AMBIENT, AMP_SATURATED, FilterConfig
+from lunad.filters.estimate import Estimate, Reason, Status, Zone
+from lunad.filters.lux import C2_FLOOR_FRACTION, clipped_square_mean
+from lunad.filters.policy import first_amp_at_least
 
+_SATURATED = (Reason.SATURATED,)
+_AMBIENT = (Reason.HIGH_AMBIENT,)
+_WEAK = (Reason.WEAK_SIGNAL,)
+_OUT = (Reason.OUT_OF_RANGE,)
+_WEAK_OUT = (Reason.WEAK_SIGNAL, Reason.OUT_OF_RANGE)
 _OUTLIER = (Reason.OUTLIER,)
 _OUTLIER_AMBIENT = (Reason.OUTLIER, Reason.HIGH_AMBIENT)
-_AMBIENT = (Reason.HIGH_AMBIENT,)
 _NONE: tuple[Reason, ...] = ()
 _STALE = (Reason.STALE,)
-_OUT_OF_RANGE = (Reason.OUT_OF_RANGE,)
 _OK = Status.OK
 _DEGRADED = Status.DEGRADED
 _DROPOUT = Status.DROPOUT
+_STABLE = Zone.STABLE
+_MARGINAL = Zone.MARGINAL
+_UNRELIABLE = Zone.UNRELIABLE
 _new = tuple.__new__
 """Builds an ``Estimate`` from a tuple without the ``NamedTuple``'s generated Python
 ``__new__``: one C call instead of a Python frame, on every frame."""
@@ -48,32 +45,141 @@ _new = tuple.__new__
 class RangeFilter:
     """Turns raw readings into published estimates; pure, one call per frame.
 
-    Not thread-safe: one instance per sensor, called from the read loop.
+    Not thread-safe: one instance per sensor, called from the read loop. The state
+    has the names of the pieces it comes from (``x``, ``p00``: kalman.py; ``c2``,
+    ``lux``: lux.py; ``weak``: policy.py; ``zone``: zone.py).
     """
+
+    __slots__ = (
+        "_amp_strong",
+        "_amp_strong_again",
+        "_c2_floor",
+        "_c2_init",
+        "_clip2",
+        "_confirm",
+        "_floor",
+        "_gate2",
+        "_have_lux",
+        "_inv_amp_ref",
+        "_inv_kappa",
+        "_k",
+        "_last_accept_ns",
+        "_last_t_ns",
+        "_lux_enter",
+        "_lux_exit",
+        "_lux_init",
+        "_lux_stable",
+        "_lux_stable_stay",
+        "_lux_unrel",
+        "_lux_unrel_leave",
+        "_max_feed",
+        "_max_in",
+        "_max_m",
+        "_min_in",
+        "_min_m",
+        "_q_m2",
+        "_qa",
+        "_run_last",
+        "_run_n",
+        "_run_r",
+        "_run_rsum",
+        "_run_sign",
+        "_run_sum",
+        "_s_stable",
+        "_s_stable_stay",
+        "_s_unrel",
+        "_s_unrel_leave",
+        "_sig_stable",
+        "_sig_stable_stay",
+        "_sig_unrel",
+        "_sig_unrel_leave",
+        "_sigma0",
+        "_stale_ns",
+        "_tau_s",
+        "_tau_zone_s",
+        "_v0var",
+        "active",
+        "ambient",
+        "c2",
+        "c2_zone",
+        "config",
+        "lux",
+        "lux_zone",
+        "out_of_range",
+        "p00",
+        "p01",
+        "p11",
+        "v",
+        "weak",
+        "x",
+        "zone",
+    )
 
     def __init__(self, config: FilterConfig | None = None) -> None:
         self.config = c = config or FilterConfig()
-        self._inv_amp_ref = 1.0 / c.amp_ref
+        h = c.hysteresis
+        self._inv_amp_ref = inv_amp_ref = 1.0 / c.amp_ref
         self._q_m2 = c.resolution_m * c.resolution_m / 12.0
         self._stale_ns = round(c.stale_after_s * 1e9)
         self._floor = c.sigma_floor_m
         self._min_m = c.min_range_m
         self._max_m = c.max_range_m
-        self.policy = DropoutPolicy(c)
-        self.tracker = Tracker(c.accel_psd, c.gate_sigmas, c.step_confirm, c.init_speed_sigma_m_s)
-        self.lux = LuxEstimator(c)
-        self.zones = ZoneClassifier(c)
-        self._last_t_ns: int | None = None
-        self._last_accept_ns = 0
-        self._have_lux = False
+        # policy.py
+        self._amp_strong = first_amp_at_least(c.amp_min, c.s_min, inv_amp_ref)
+        self._amp_strong_again = first_amp_at_least(
+            c.amp_min * (1.0 + h), c.s_min * (1.0 + h), inv_amp_ref
+        )
+        self._min_in = c.min_range_m + c.range_hysteresis_m
+        self._max_in = c.max_range_m - c.range_hysteresis_m
+        self._max_feed = c.max_range_m + c.range_feed_margin_m
+        self._lux_enter = c.lux_high_ambient
+        self._lux_exit = c.lux_high_ambient * (1.0 - h)
+        # kalman.py
+        self._qa = c.accel_psd
+        self._gate2 = c.gate_sigmas * c.gate_sigmas
+        self._confirm = c.step_confirm
+        self._v0var = c.init_speed_sigma_m_s * c.init_speed_sigma_m_s
+        # lux.py
+        self._sigma0 = c.sigma0_m
+        self._k = c.k_m_per_lux
+        self._tau_s = c.lux_tau_s
+        self._tau_zone_s = c.lux_zone_tau_s
+        self._clip2 = c.lux_clip_sigmas * c.lux_clip_sigmas
+        self._inv_kappa = 1.0 / clipped_square_mean(c.lux_clip_sigmas)
+        c_init = c.sigma0_m + c.k_m_per_lux * c.lux_init
+        self._c2_init = c_init * c_init
+        lux_init = (sqrt(self._c2_init) - c.sigma0_m) / c.k_m_per_lux
+        self._lux_init = lux_init if lux_init > 0.0 else 0.0
+        self._c2_floor = C2_FLOOR_FRACTION * c.sigma0_m * c.sigma0_m
+        # zone.py
+        up = 1.0 + c.zone_hysteresis
+        down = 1.0 - c.zone_hysteresis
+        self._lux_stable = c.lux_stable_max
+        self._s_stable = c.s_stable_min
+        self._sig_stable = c.sigma_stable_max_m
+        self._lux_stable_stay = c.lux_stable_max * up
+        self._s_stable_stay = c.s_stable_min * down
+        self._sig_stable_stay = c.sigma_stable_max_m * up
+        self._lux_unrel = c.lux_unreliable
+        self._s_unrel = c.s_unreliable
+        self._sig_unrel = c.sigma_unreliable_m
+        self._lux_unrel_leave = c.lux_unreliable * down
+        self._s_unrel_leave = c.s_unreliable * up
+        self._sig_unrel_leave = c.sigma_unreliable_m * down
+        self.reset()
 
     def reset(self) -> None:
         """Forget all state (after a reconnect)."""
-        self.policy.reset()
-        self.tracker.reset()
-        self.lux.reset()
-        self.zones.reset()
-        self._last_t_ns = None
+        self.weak = self.out_of_range = self.ambient = False
+        self.active = False
+        self.x = self.v = self.p00 = self.p01 = self.p11 = 0.0
+        self._run_n = 0
+        self._run_sum = self._run_rsum = self._run_last = self._run_r = 0.0
+        self._run_sign = False
+        self.c2 = self.c2_zone = self._c2_init
+        self.lux = self.lux_zone = self._lux_init
+        self.zone = _UNRELIABLE
+        self._last_t_ns: int | None = None
         self._last_accept_ns = 0
         self._have_lux = False
 
@@ -112,50 +218,191 @@ class RangeFilter:
             dt = 0.0
         else:
             dt = (t - last) * 1e-9
-        pol = self.policy
-        tr = self.tracker
-        reasons = pol.gate(raw_m, amp)
-        outlier = False
-        if pol.usable and raw_m is not None:
-            q = self._q_m2
-            r = (sigma_known * sigma_known if sigma_known > 0.0 else self.lux.c2 / (s * s)) + q
-            if tr.active and t - self._last_accept_ns <= self._stale_ns:
-                tr.predict(dt)
-                if sigma_known <= 0.0:
-                    self.lux.update(raw_m - tr.x, tr.p00, s, q, dt)
-                    self._have_lux = True
-                outlier = tr.update(raw_m, r) == OUTLIER
+
+        # Gates with hysteresis (policy.py: DropoutPolicy.gate).
+        z: float | None = None  # the reading, when it may feed the filter
+        if amp > AMP_AMBIENT:
+            reasons = _SATURATED if amp == AMP_SATURATED else _AMBIENT
+        else:
+            weak = amp < (self._amp_strong_again if self.weak else self._amp_strong)
+            self.weak = weak
+            if raw_m is None:
+                reasons = _WEAK if weak else _OUT
             else:
-                tr.start(raw_m, r)
-            if not outlier:
+                if self.out_of_range:
+                    out = raw_m < self._min_in or raw_m > self._max_in
+                else:
+                    out = raw_m < self._min_m or raw_m > self._max_m
+                self.out_of_range = out
+                if amp >= self._amp_strong and self._min_m <= raw_m <= self._max_feed:
+                    z = raw_m
+                if weak:
+                    reasons = _WEAK_OUT if out else _WEAK
+                else:
+                    reasons = _OUT if out else _NONE
+
+        outlier = False
+        active = self.active
+        if z is not None:
+            q = self._q_m2
+            c2 = self.c2
+            r = (sigma_known * sigma_known if sigma_known > 0.0 else c2 / (s * s)) + q
+            if active and t - self._last_accept_ns <= self._stale_ns:
+                # Predict (kalman.py: Tracker.predict).
+                x = self.x
+                p00 = self.p00
+                if dt > 0.0:
+                    p01 = self.p01
+                    p11 = self.p11
+                    qd = self._qa * dt
+                    x += self.v * dt
+                    p00 += dt * (2.0 * p01 + dt * p11) + qd * dt * dt * (1.0 / 3.0)
+                    self.p01 = p01 + dt * p11 + 0.5 * qd * dt
+                    self.p11 = p11 + qd
+                e = z - x
+                # Lux estimate (lux.py: LuxEstimator.update).
+                if sigma_known <= 0.0:
+                    if dt > 0.0:
+                        s2 = s * s
+                        e2 = e * e
+                        lim = self._clip2 * (p00 + c2 / s2 + q)
+                        if e2 > lim:
+                            e2 = lim
+                        sample = (e2 * self._inv_kappa - p00 - q) * s2
+                        c2_floor = self._c2_floor
+                        a = dt / self._tau_s
+                        c2 += (a if a < 0.5 else 0.5) * (sample - c2)
+                        if c2 < c2_floor:
+                            c2 = c2_floor
+                        self.c2 = c2
+                        lux = (sqrt(c2) - self._sigma0) / self._k
+                        self.lux = lux if lux > 0.0 else 0.0
+                        c2 = self.c2_zone
+                        a = dt / self._tau_zone_s
+                        c2 += (a if a < 0.5 else 0.5) * (sample - c2)
+                        if c2 < c2_floor:
+                            c2 = c2_floor
+                        self.c2_zone = c2
+                        lux = (sqrt(c2) - self._sigma0) / self._k
+                        self.lux_zone = lux if lux > 0.0 else 0.0
+                    self._have_lux = True
+                # Update, gate and step confirmation (kalman.py: Tracker.update).
+                sp = p00 + r
+                gate2 = self._gate2
+                if e * e > gate2 * sp:
+                    sign = e > 0.0
+                    d = z - self._run_last
+                    n = self._run_n
+                    if n and sign == self._run_sign and d * d <= gate2 * (r + self._run_r):
+                        n += 1
+                        self._run_sum += z
+                        self._run_rsum += r
+                    else:
+                        n = 1
+                        self._run_sum = z
+                        self._run_rsum = r
+                        self._run_sign = sign
+                    self._run_last = z
+                    self._run_r = r
+                    if n >= self._confirm:
+                        self._start(self._run_sum / n, self._run_rsum / (n * n))
+                        self._last_accept_ns = t
+                    else:
+                        self._run_n = n
+                        self.x = x
+                        self.p00 = p00
+                        outlier = True
+                else:
+                    self._run_n = 0
+                    p01 = self.p01
+                    k0 = p00 / sp
+                    k1 = p01 / sp
+                    self.x = x + k0 * e
+                    self.v += k1 * e
+                    self.p00 = p00 - k0 * p00
+                    self.p01 = p01 - k0 * p01
+                    self.p11 -= k1 * p01
+                    self._last_accept_ns = t
+            else:
+                self._start(z, r)
                 self._last_accept_ns = t
-        elif tr.active:
-            tr.predict(dt)
-        if not reasons and tr.active:
-            x = tr.x
+        elif active and dt > 0.0:
+            self._predict(dt)
+
+        # Publish or not (ReferenceFilter.step), ambient flag and zone.
+        if not reasons and self.active:
+            x = self.x
             if self._min_m <= x <= self._max_m:
-                sigma = sqrt(tr.p00)
+                sigma = sqrt(self.p00)
                 if sigma < self._floor:
                     sigma = self._floor
                 if self._have_lux:
-                    lux_est = self.lux
-                    lux: float | None = lux_est.lux
-                    lux_zone = lux_est.lux_zone
-                    ambient = pol.high_ambient(lux_zone)
+                    lux_out: float | None = self.lux
+                    lux_zone = self.lux_zone
+                    if self.ambient:
+                        ambient = self.ambient = lux_zone > self._lux_exit
+                    else:
+                        ambient = self.ambient = lux_zone > self._lux_enter
                 else:
-                    lux = None
+                    lux_out = None
                     lux_zone = 0.0
                     ambient = False
-                zone = self.zones.classify(lux_zone, s, sigma)
+                zone = self._zone(lux_zone, s, sigma)
                 if outlier:
                     reasons = _OUTLIER_AMBIENT if ambient else _OUTLIER
                 elif ambient:
                     reasons = _AMBIENT
                 else:
-                    return _new(Estimate, (x, sigma, lux, s, _OK, _NONE, zone))
-                return _new(Estimate, (x, sigma, lux, s, _DEGRADED, reasons, zone))
-            reasons = _OUT_OF_RANGE
-        lux = self.lux.lux if self._have_lux else None
+                    return _new(Estimate, (x, sigma, lux_out, s, _OK, _NONE, zone))
+                return _new(Estimate, (x, sigma, lux_out, s, _DEGRADED, reasons, zone))
+            reasons = _OUT
+        self.zone = _UNRELIABLE
         if t - self._last_accept_ns > self._stale_ns:
             reasons = (*reasons, Reason.STALE) if reasons else _STALE
-        return _new(Estimate, (None, None, lux, s, _DROPOUT, reasons, self.zones.dropout()))
+        lux_out = self.lux if self._have_lux else None
+        return _new(Estimate, (None, None, lux_out, s, _DROPOUT, reasons, _UNRELIABLE))
+
+    def _start(self, z_m: float, r_m2: float) -> None:
+        """Begin a track at ``z_m`` (variance ``r_m2``) with unknown speed (Tracker.start)."""
+        self.active = True
+        self.x = z_m
+        self.v = 0.0
+        self.p00 = r_m2
+        self.p01 = 0.0
+        self.p11 = self._v0var
+        self._run_n = 0
+
+    def _predict(self, dt_s: float) -> None:
+        """Move the state ``dt_s`` (> 0) seconds ahead without a reading (Tracker.predict)."""
+        p01 = self.p01
+        p11 = self.p11
+        q = self._qa * dt_s
+        self.x += self.v * dt_s
+        self.p00 += dt_s * (2.0 * p01 + dt_s * p11) + q * dt_s * dt_s * (1.0 / 3.0)
+        self.p01 = p01 + dt_s * p11 + 0.5 * q * dt_s
+        self.p11 = p11 + q
+
+    def _zone(self, lux: float, s: float, sigma_m: float) -> Zone:
+        """Zone of a published estimate, with hysteresis (ZoneClassifier.classify)."""
+        prev = self.zone
+        if prev is _UNRELIABLE:
+            if not (
+                lux < self._lux_unrel_leave
+                and s >= self._s_unrel_leave
+                and sigma_m <= self._sig_unrel_leave
+            ):
+                return _UNRELIABLE
+        elif lux > self._lux_unrel or s < self._s_unrel or sigma_m > self._sig_unrel:
+            self.zone = _UNRELIABLE
+            return _UNRELIABLE
+        if prev is _STABLE:
+            stable = (
+                lux < self._lux_stable_stay
+                and s >= self._s_stable_stay
+                and sigma_m <= self._sig_stable_stay
+            )
+        else:
+            stable = lux < self._lux_stable and s >= self._s_stable and sigma_m <= self._sig_stable
+        zone = _STABLE if stable else _MARGINAL
+        self.zone = zone
+        return zone

@@ -36,7 +36,7 @@ def test_quick_json_has_every_figure(capsys: Any) -> None:
     doc = json.loads(out)
     assert doc["bulk"]["same_as_streaming"] is True
     assert doc["bulk"]["bulk_fps"] > 0
-    assert doc["pipeline"]["total_us"] > 0
+    assert doc["pipeline"]["total_us"] > 0 and doc["pipeline"]["reference_filter_us"] > 0
     for key in ("lunad", "floor", "lunad_hz"):
         s = doc["serve"][key]
         for figure in (
@@ -55,7 +55,7 @@ def test_quick_json_has_every_figure(capsys: Any) -> None:
 
 def test_table_renders_every_line() -> None:
     b = bench.BulkResult(10, 90, 3e6, 2e5, True)
-    p = bench.PipelineResult(10, 1.0, 2.0, 3.0, 6.0)
+    p = bench.PipelineResult(10, 1.0, 2.0, 3.0, 6.0, 2.5)
 
     def summary(variant: str, hz: float | None) -> bench.ServeSummary:
         return bench.ServeSummary(variant, hz, 1, 100.0, 2.5, 300.0, 600.0, 0.0, 50.0, 0.5)
