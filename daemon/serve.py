@@ -94,6 +94,8 @@ class Daemon:
         self.parser = FrameParser()
         self.recorder: Recorder | None = None
         self.seq = -1
+        self._unsent: tuple[Frame, float | None, Estimate, int] | None = None
+        """``publish_hz``: the latest frame's estimate, until a publish time sends it."""
         self._reasons_json: dict[tuple[str, ...], str] = {}
         self.filter = RangeFilter(cfg.filter.to_filter_config())
         self._apply(cfg)
@@ -289,7 +291,8 @@ class Daemon:
         While the sensor streams, it sleeps until each publish time, takes what the
         port holds (about ``frame_rate / publish_hz`` frames) in one read, filters every
         frame and publishes only the last; at ``until_ns`` it reads and filters too, so
-        a slow ``publish_hz`` cannot let the port's buffer overflow. The frames of one
+        a slow ``publish_hz`` cannot let the port's buffer overflow, and what it read
+        then waits for the next publish time. The frames of one
         read arrived a frame period apart, so the filter gets them spaced so, ending at
         the read time (their messages keep the read time, the contract's
         ``t_mono_ns``); stamped all alike, the filter would see 4 of 5 frames at
@@ -331,20 +334,25 @@ class Daemon:
                 self._last_bytes = t_mono
                 if self.recorder is not None:
                     self.recorder(chunk)
-                last: tuple[Frame, float | None, Estimate] | None = None
                 items = feed(data, t_mono)
                 k = len(items)
                 for item in items:
                     k -= 1
                     if type(item) is Frame:
                         raw_m = item.distance_m
-                        last = (item, raw_m, step(item, raw_m, t_mono - k * spacing))
+                        est = step(item, raw_m, t_mono - k * spacing)
+                        self._unsent = (item, raw_m, est, t_mono)
                     else:
                         self._on_reply(item)  # type: ignore[arg-type]
-                if last is not None and publish:
-                    self._send_range(*last, t_mono, t_mono + self._unix_offset_ns)
-                if health.state is not _CONNECTED or self._version_deadline is not None:
-                    break
+            unsent = self._unsent
+            if publish and unsent is not None:
+                self._unsent = None
+                frame, raw_m, est, t_read = unsent
+                self._send_range(frame, raw_m, est, t_read, t_read + self._unix_offset_ns)
+            if chunk is not None and (
+                health.state is not _CONNECTED or self._version_deadline is not None
+            ):
+                break
             if now >= until_ns:
                 break
         return got
@@ -498,6 +506,7 @@ class Daemon:
             src.close()
         self.parser.reset()
         self.filter.reset()
+        self._unsent = None
 
     def _source_desc(self) -> str:
         s = self.cfg.source

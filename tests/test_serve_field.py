@@ -96,6 +96,72 @@ def test_publish_hz_folds_frames(
     assert max(b - a for a, b in itertools.pairwise(seqs)) >= 3  # frames folded
 
 
+def test_publish_hz_gives_the_filter_a_backlogs_frames_a_frame_period_apart(
+    start_daemon: Any, endpoint: str, tmp_path: Path
+) -> None:
+    """Frames read together arrived 4 ms apart: the filter must see them so, not all at
+    the read time (which would give it dt = 0 for four frames in five)."""
+    import random
+
+    from lunad.daemon.record import Recorder
+    from lunad.daemon.source import Chunk
+    from lunad.filters import RangeFilter
+    from lunad.protocol.frame import encode_frame
+
+    rng = random.Random(3)
+    period, per_read, t0 = 4_000_000, 5, 10**12
+    frames = []  # (distance_m, amp), a target approaching at 1 m/s
+    for j in range(300):
+        d_cm = round((2.0 - j * 0.004 + rng.gauss(0, 0.01)) * 100)
+        frames.append((d_cm / 100, 1500 + rng.randrange(-40, 40)))
+    rec = tmp_path / "backlog.lunarec"
+    with Recorder(rec, source_desc="test") as r:
+        for k in range(len(frames) // per_read):
+            data = b"".join(
+                encode_frame(round(d * 100), amp, 2368)
+                for d, amp in frames[k * per_read : (k + 1) * per_read]
+            )
+            r(Chunk(data, t0 + (k + 1) * per_read * period))
+
+    def reference(spaced: bool) -> list[tuple[float | None, float | None, float | None]]:
+        flt = RangeFilter()
+        out = []
+        for j, (d, amp) in enumerate(frames):
+            t_read = t0 + (j // per_read + 1) * per_read * period
+            t = t0 + (j + 1) * period if spaced else t_read
+            e = flt.step(d, amp, t)
+            out.append((e.range_m, e.sigma_m, e.lux_est))
+        return out
+
+    spaced, alike = reference(True), reference(False)
+    start_daemon(
+        *("--replay", str(rec), "--speed", "max", "--publish", endpoint),
+        *("--rate", "250", "--publish-hz", "50"),
+    )
+    got = []
+    with Subscriber(endpoint) as sub:
+        while (m := sub.recv(timeout_s=5.0)) is not None and len(got) < 40:
+            if isinstance(m, RangeMessage):
+                got.append(m)
+    assert len(got) >= 20
+
+    def near(a: float | None, b: float | None, digits: int) -> bool:
+        if a is None or b is None:
+            return a is b
+        return abs(a - b) <= 0.6 * 10.0**-digits
+
+    def matches(m: RangeMessage, want: tuple[float | None, ...]) -> bool:
+        return (
+            near(m.range_m, want[0], 4)
+            and near(m.sigma_m, want[1], 5)
+            and near(m.lux_est, want[2], 1)
+        )
+
+    assert all(m.seq % per_read == per_read - 1 for m in got)  # one message a read, its last
+    assert all(matches(m, spaced[m.seq]) for m in got)
+    assert not all(matches(m, alike[m.seq]) for m in got)  # the check can tell them apart
+
+
 def test_sighup_reload_good_and_bad(
     device: Callable[..., PtyDevice],
     start_daemon: Any,
