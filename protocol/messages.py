@@ -107,54 +107,8 @@ def encode_range(
     Args:
         sensor_json: the sensor name already JSON-encoded (with quotes), done once.
         reasons_json: the reasons list already JSON-encoded, e.g. ``'["weak_signal"]'``.
-        Everything else as in ``RangeMessage``. Metres are written with 4 decimals
-        (0.1 mm; sigma 5), lux 1, strength 5, temperature 3 (exact: the sensor's
-        steps are 1/8 degree), each within half a unit of its last decimal.
-
-    Why integers: a message with every field (the usual one) is written from fixed-point
-    integers, no float formatting. A float's decimal conversion is the costliest part of
-    the message in place: on a wake-up every 4 ms its code and tables start cold
-    (docs/performance.md, "Session 4"). Other messages (a null, a negative value such
-    as a frosty temperature) take ``_RANGE_JSON``'s float formats; the values agree.
+        Everything else as in ``RangeMessage``; metres are rounded to 0.1 mm (sigma to 0.01 mm).
     """
-    if (
-        raw_m is not None
-        and range_m is not None
-        and sigma_m is not None
-        and lux_est is not None
-        and min(raw_m, temp_c, strength, range_m, sigma_m, lux_est) >= 0.0
-    ):
-        r = int(raw_m * 1e4 + 0.5)
-        tc = int(temp_c * 1e3 + 0.5)
-        s = int(strength * 1e5 + 0.5)
-        x = int(range_m * 1e4 + 0.5)
-        g = int(sigma_m * 1e5 + 0.5)
-        lx = int(lux_est * 10.0 + 0.5)
-        return (
-            _RANGE_JSON_FIXED
-            % (
-                sensor_json,
-                seq,
-                t_mono_ns,
-                t_unix_ns,
-                r // 10000,
-                r % 10000,
-                amp,
-                tc // 1000,
-                tc % 1000,
-                s // 100000,
-                s % 100000,
-                x // 10000,
-                x % 10000,
-                g // 100000,
-                g % 100000,
-                lx // 10,
-                lx % 10,
-                status,
-                reasons_json,
-                zone,
-            )
-        ).encode()
     return (
         _RANGE_JSON
         % (
@@ -182,15 +136,9 @@ _RANGE_JSON = (
     '"status":"%s","reasons":%s,"zone":"%s"}'
 )
 """One ``%`` format for the whole message: about 2.5x faster than an f-string of
-``repr(round(x, n))`` calls (``lunad bench``, line "pipeline")."""
-
-_RANGE_JSON_FIXED = (
-    '{"v":1,"sensor":%s,"seq":%d,"t_mono_ns":%d,"t_unix_ns":%d,"raw_m":%d.%04d,"amp":%d,'
-    '"temp_c":%d.%03d,"strength":%d.%05d,"range_m":%d.%04d,"sigma_m":%d.%05d,'
-    '"lux_est":%d.%d,"status":"%s","reasons":%s,"zone":"%s"}'
-)
-"""``_RANGE_JSON`` with each non-negative number as two integers, whole and decimals.
-``tests/test_messages.py`` checks both give the same message up to the last decimal."""
+``repr(round(x, n))`` calls (``lunad bench``, line "pipeline"). Fixed decimals
+(``1.9800``) parse to the same float as ``round(x, 4)``; ``tests/test_messages.py``
+checks that on random values."""
 
 
 def encode_health(msg: HealthMessage) -> bytes:
