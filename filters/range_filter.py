@@ -2,16 +2,17 @@
 
 It computes exactly what ``ReferenceFilter`` (reference.py) computes from the
 documented pieces: the gates with hysteresis (policy.py), the constant-velocity
-Kalman filter with its innovation gate and step confirmation (kalman.py), the lux
-estimator (lux.py) and the zone (zone.py). Read those for the model and the paper's
-equations; this module only inlines them. tests/test_filters_equivalence.py checks
-that both give equal estimates, float for float, on every built-in scenario at three
-noise scales and in all three noise modes.
+Kalman filter with its innovation gate and step confirmation (kalman.py) and the lux
+estimator (lux.py) are inlined; the zone is zone.py's own ``ZoneClassifier``. Read
+those modules for the model and the paper's equations. tests/test_filters_equivalence.py
+checks that both filters give equal estimates, float for float, on every built-in
+scenario at three noise scales, in all three noise modes, and on arbitrary streams.
 
 Why flat: every frame pays for this at 250 Hz, and a call per piece plus the hops
-between five objects cost about an eighth of it. One function holding the whole state
-on one object takes 0.86-0.88x the time of the composed form (``lunad bench``, line
-"filter composed from its pieces"; docs/performance.md, "Session 4").
+between five objects cost about an eighth of it. One function holding the state on one
+object took 0.84-0.90x the time of the composed form (three scenarios, two runs;
+``lunad bench`` prints the ratio, line "filter composed from its pieces";
+docs/performance.md, "Session 4").
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from lunad.filters.config import AMP_AMBIENT, AMP_SATURATED, FilterConfig
 from lunad.filters.estimate import Estimate, Reason, Status, Zone
 from lunad.filters.lux import C2_FLOOR_FRACTION, clipped_square_mean
 from lunad.filters.policy import first_amp_at_least
+from lunad.filters.zone import ZoneClassifier
 
 _SATURATED = (Reason.SATURATED,)
 _AMBIENT = (Reason.HIGH_AMBIENT,)
@@ -35,8 +37,6 @@ _STALE = (Reason.STALE,)
 _OK = Status.OK
 _DEGRADED = Status.DEGRADED
 _DROPOUT = Status.DROPOUT
-_STABLE = Zone.STABLE
-_MARGINAL = Zone.MARGINAL
 _UNRELIABLE = Zone.UNRELIABLE
 _new = tuple.__new__
 """Builds an ``Estimate`` from a tuple without the ``NamedTuple``'s generated Python
@@ -48,7 +48,8 @@ class RangeFilter:
 
     Not thread-safe: one instance per sensor, called from the read loop. The state
     has the names of the pieces it comes from (``x``, ``p00``: kalman.py; ``c2``,
-    ``lux``: lux.py; ``weak``: policy.py; ``zone``: zone.py).
+    ``lux``: lux.py; ``weak``: policy.py); the zone keeps its ``ZoneClassifier``, one
+    call a published frame either way.
     """
 
     __slots__ = (
@@ -69,10 +70,6 @@ class RangeFilter:
         "_lux_enter",
         "_lux_exit",
         "_lux_init",
-        "_lux_stable",
-        "_lux_stable_stay",
-        "_lux_unrel",
-        "_lux_unrel_leave",
         "_max_feed",
         "_max_in",
         "_max_m",
@@ -86,14 +83,6 @@ class RangeFilter:
         "_run_rsum",
         "_run_sign",
         "_run_sum",
-        "_s_stable",
-        "_s_stable_stay",
-        "_s_unrel",
-        "_s_unrel_leave",
-        "_sig_stable",
-        "_sig_stable_stay",
-        "_sig_unrel",
-        "_sig_unrel_leave",
         "_sigma0",
         "_stale_ns",
         "_tau_s",
@@ -113,7 +102,7 @@ class RangeFilter:
         "v",
         "weak",
         "x",
-        "zone",
+        "zones",
     )
 
     def __init__(self, config: FilterConfig | None = None) -> None:
@@ -152,21 +141,7 @@ class RangeFilter:
         lux_init = (sqrt(self._c2_init) - c.sigma0_m) / c.k_m_per_lux
         self._lux_init = lux_init if lux_init > 0.0 else 0.0
         self._c2_floor = C2_FLOOR_FRACTION * c.sigma0_m * c.sigma0_m
-        # zone.py
-        up = 1.0 + c.zone_hysteresis
-        down = 1.0 - c.zone_hysteresis
-        self._lux_stable = c.lux_stable_max
-        self._s_stable = c.s_stable_min
-        self._sig_stable = c.sigma_stable_max_m
-        self._lux_stable_stay = c.lux_stable_max * up
-        self._s_stable_stay = c.s_stable_min * down
-        self._sig_stable_stay = c.sigma_stable_max_m * up
-        self._lux_unrel = c.lux_unreliable
-        self._s_unrel = c.s_unreliable
-        self._sig_unrel = c.sigma_unreliable_m
-        self._lux_unrel_leave = c.lux_unreliable * down
-        self._s_unrel_leave = c.s_unreliable * up
-        self._sig_unrel_leave = c.sigma_unreliable_m * down
+        self.zones = ZoneClassifier(c)
         self.reset()
 
     def reset(self) -> None:
@@ -179,7 +154,7 @@ class RangeFilter:
         self._run_sign = False
         self.c2 = self.c2_zone = self._c2_init
         self.lux = self.lux_zone = self._lux_init
-        self.zone = _UNRELIABLE
+        self.zones.reset()
         self._last_t_ns: int | None = None
         self._last_accept_ns = 0
         self._have_lux = False
@@ -348,7 +323,7 @@ class RangeFilter:
                     lux_out = None
                     lux_zone = 0.0
                     ambient = False
-                zone = self._zone(lux_zone, s, sigma)
+                zone = self.zones.classify(lux_zone, s, sigma)
                 if outlier:
                     reasons = _OUTLIER_AMBIENT if ambient else _OUTLIER
                 elif ambient:
@@ -357,7 +332,7 @@ class RangeFilter:
                     return _new(Estimate, (x, sigma, lux_out, s, _OK, _NONE, zone))
                 return _new(Estimate, (x, sigma, lux_out, s, _DEGRADED, reasons, zone))
             reasons = _OUT
-        self.zone = _UNRELIABLE
+        self.zones.zone = _UNRELIABLE
         if t - self._last_accept_ns > self._stale_ns:
             reasons = (*reasons, Reason.STALE) if reasons else _STALE
         lux_out = self.lux if self._have_lux else None
@@ -382,28 +357,3 @@ class RangeFilter:
         self.p00 += dt_s * (2.0 * p01 + dt_s * p11) + q * dt_s * dt_s * (1.0 / 3.0)
         self.p01 = p01 + dt_s * p11 + 0.5 * q * dt_s
         self.p11 = p11 + q
-
-    def _zone(self, lux: float, s: float, sigma_m: float) -> Zone:
-        """Zone of a published estimate, with hysteresis (ZoneClassifier.classify)."""
-        prev = self.zone
-        if prev is _UNRELIABLE:
-            if not (
-                lux < self._lux_unrel_leave
-                and s >= self._s_unrel_leave
-                and sigma_m <= self._sig_unrel_leave
-            ):
-                return _UNRELIABLE
-        elif lux > self._lux_unrel or s < self._s_unrel or sigma_m > self._sig_unrel:
-            self.zone = _UNRELIABLE
-            return _UNRELIABLE
-        if prev is _STABLE:
-            stable = (
-                lux < self._lux_stable_stay
-                and s >= self._s_stable_stay
-                and sigma_m <= self._sig_stable_stay
-            )
-        else:
-            stable = lux < self._lux_stable and s >= self._s_stable and sigma_m <= self._sig_stable
-        zone = _STABLE if stable else _MARGINAL
-        self.zone = zone
-        return zone

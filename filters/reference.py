@@ -86,29 +86,14 @@ class ReferenceFilter:
     def step_known_sigma(
         self, raw_m: float | None, amp: int, t_mono_ns: int, sigma_m: float
     ) -> Estimate:
-        """Like :meth:`step`, with the reading's noise given instead of estimated.
-
-        For baselines (a fixed-noise filter, an oracle that knows the simulator's
-        true per-reading sigma): the same gates, Kalman filter and step logic, only
-        the measurement variance differs. ``sigma_m`` excludes the quantisation,
-        which is added as in :meth:`step`. The lux estimator is not updated.
-        """
+        """As ``RangeFilter.step_known_sigma``: the reading's noise given, not estimated."""
         return self.step(raw_m, amp, t_mono_ns, sigma_m)
 
     def step(
         self, raw_m: float | None, amp: int, t_mono_ns: int, sigma_known: float = 0.0
     ) -> Estimate:
-        """Clean one reading.
-
-        Args:
-            raw_m: distance the sensor reported, metres, or None when it reported none.
-            amp: the sensor's signal strength.
-            t_mono_ns: monotonic receive time, nanoseconds.
-            sigma_known: leave at 0 (the noise is estimated); see ``step_known_sigma``.
-
-        Returns:
-            The estimate to publish for this frame.
-        """
+        """Clean one reading; arguments (metres, amp, nanoseconds) and result as
+        ``RangeFilter.step``."""
         t = t_mono_ns
         s = amp * self._inv_amp_ref
         last = self._last_t_ns

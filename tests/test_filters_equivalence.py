@@ -35,7 +35,7 @@ def run_both(config: FilterConfig, steps: list[Step], reset_at: int = -1) -> Non
         ref.tracker.p01,
         ref.tracker.p11,
     )
-    assert (flat.c2, flat.c2_zone, flat.zone) == (ref.lux.c2, ref.lux.c2_zone, ref.zones.zone)
+    assert (flat.c2, flat.c2_zone, flat.zones.zone) == (ref.lux.c2, ref.lux.c2_zone, ref.zones.zone)
 
 
 @pytest.mark.parametrize("scale", [0.5, 1.0, 2.0])
