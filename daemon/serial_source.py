@@ -36,6 +36,7 @@ class SerialSource(Source):
         except (serial.SerialException, OSError, ValueError) as exc:
             raise SourceOpenError(f"cannot open {device}: {exc}") from exc
         ser = self._ser
+        # The port and pyserial's abort pipe, polled together; None for URL ports.
         self._poll: Callable[[float | None], list[tuple[int, int]]] | None = None
         if type(ser) is serial.Serial:
             self._fd: int = ser.fd
@@ -44,8 +45,6 @@ class SerialSource(Source):
             poller.register(self._fd, select.POLLIN)
             poller.register(self._abort, select.POLLIN)
             self._poll = poller.poll
-        """The port and pyserial's abort pipe, polled together; None for URL ports."""
-        """The port and pyserial's abort pipe, for ``select``; None for URL ports."""
 
     @classmethod
     def from_config(cls, cfg: SourceSection) -> SerialSource:

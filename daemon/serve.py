@@ -290,15 +290,18 @@ class Daemon:
 
         While the sensor streams, it sleeps until each publish time, takes what the
         port holds (about ``frame_rate / publish_hz`` frames) in one read, filters every
-        frame and publishes only the last; at ``until_ns`` it reads and filters too, so
-        a slow ``publish_hz`` cannot let the port's buffer overflow, and what it read
-        then waits for the next publish time. The frames of one
-        read arrived a frame period apart, so the filter gets them spaced so, ending at
-        the read time (their messages keep the read time, the contract's
-        ``t_mono_ns``); stamped all alike, the filter would see 4 of 5 frames at
-        ``dt = 0`` and the lux estimate would learn from one in five. While the
-        sensor is silent it blocks in the read instead: no wake-ups at ``publish_hz``.
-        Returns to the housekeeping loop at ``until_ns`` or as ``_read_each`` does.
+        frame and publishes only the last. At ``until_ns`` it reads and filters too, so
+        that a slow ``publish_hz`` cannot let the port's buffer overflow; what it read
+        then waits for the next publish time.
+
+        The frames of one read arrived a frame period apart, so the filter gets them
+        spaced so, ending at the read time; their messages keep the read time (the
+        contract's ``t_mono_ns``). Stamped all alike, the filter would see four frames
+        in five at ``dt = 0``, and the lux estimate would learn from one in five.
+
+        While the sensor is silent it blocks in the read instead: no wake-ups at
+        ``publish_hz``. Returns to the housekeeping loop at ``until_ns`` or as
+        ``_read_each`` does.
         """
         got = False
         pub = self.pub
