@@ -36,6 +36,12 @@ from lunad.filters.config import FilterConfig
 C2_FLOOR_FRACTION = 0.01  # c_hat never below sigma0 / 10: keeps R positive and learnable
 
 
+def lux_of(c2: float, sigma0_m: float, k_m_per_lux: float) -> float:
+    """L_hat = (c_hat - sigma0) / k from c_hat^2 (m^2), in lux, clipped at 0."""
+    lux = (math.sqrt(c2) - sigma0_m) / k_m_per_lux
+    return lux if lux > 0.0 else 0.0
+
+
 def clipped_square_mean(clip_sigmas: float) -> float:
     """E[min(Z^2, c^2)] for standard normal Z: the bias of a winsorised variance."""
     c = clip_sigmas
@@ -83,7 +89,7 @@ class LuxEstimator:
         self._inv_kappa = 1.0 / clipped_square_mean(config.lux_clip_sigmas)
         c_init = config.sigma0_m + config.k_m_per_lux * config.lux_init
         self._c2_init = c_init * c_init
-        self._lux_init = self._lux_of(self._c2_init)
+        self._lux_init = lux_of(self._c2_init, self._sigma0, self._k)
         self._c2_floor = C2_FLOOR_FRACTION * config.sigma0_m * config.sigma0_m
         self.reset()
 
@@ -96,10 +102,6 @@ class LuxEstimator:
     def c_m(self) -> float:
         """Estimated noise at S = 1, metres (sigma0 + k L_hat, unclipped)."""
         return math.sqrt(self.c2)
-
-    def _lux_of(self, c2: float) -> float:
-        lux = (math.sqrt(c2) - self._sigma0) / self._k
-        return lux if lux > 0.0 else 0.0
 
     def update(self, innov_m: float, p_pred_m2: float, s: float, q_m2: float, dt_s: float) -> None:
         """Learn from one innovation.

@@ -21,7 +21,7 @@ from math import sqrt
 
 from lunad.filters.config import AMP_AMBIENT, AMP_SATURATED, FilterConfig
 from lunad.filters.estimate import Estimate, Reason, Status, Zone
-from lunad.filters.lux import C2_FLOOR_FRACTION, clipped_square_mean
+from lunad.filters.lux import C2_FLOOR_FRACTION, clipped_square_mean, lux_of
 from lunad.filters.policy import first_amp_at_least
 from lunad.filters.zone import ZoneClassifier
 
@@ -138,8 +138,7 @@ class RangeFilter:
         self._inv_kappa = 1.0 / clipped_square_mean(c.lux_clip_sigmas)
         c_init = c.sigma0_m + c.k_m_per_lux * c.lux_init
         self._c2_init = c_init * c_init
-        lux_init = (sqrt(self._c2_init) - c.sigma0_m) / c.k_m_per_lux
-        self._lux_init = lux_init if lux_init > 0.0 else 0.0
+        self._lux_init = lux_of(self._c2_init, c.sigma0_m, c.k_m_per_lux)
         self._c2_floor = C2_FLOOR_FRACTION * c.sigma0_m * c.sigma0_m
         self.zones = ZoneClassifier(c)
         self.reset()

@@ -108,18 +108,8 @@ class FrameParser:
                 if n - i < DATA_FRAME_LEN:
                     break
                 if (sum(buf[i : i + 8]) & 0xFF) == buf[i + 8]:
-                    out.append(
-                        _new(
-                            Frame,
-                            (
-                                buf[i + 2] | buf[i + 3] << 8,
-                                buf[i + 4] | buf[i + 5] << 8,
-                                buf[i + 6] | buf[i + 7] << 8,
-                                t_mono_ns,
-                                self.fmt,
-                            ),
-                        )
-                    )
+                    dist, amp, temp = _FIELDS.unpack_from(buf, i)
+                    out.append(_new(Frame, (dist, amp, temp, t_mono_ns, self.fmt)))
                     stats.frames += 1
                     i += DATA_FRAME_LEN
                     continue
