@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 PREFIX ?= /opt/lunad
 
-.PHONY: demo test lint clean install uninstall
+.PHONY: demo test lint typecheck clean install uninstall
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -19,10 +19,16 @@ $(STAMP): pyproject.toml | $(PY)
 demo: $(STAMP)
 	$(VENV)/bin/lunad demo
 
-## test: lint and the default tests, incl. a 60 s soak (bench and long soaks are opt-in)
-test: $(STAMP)
+## test: lint, type check and the default tests, incl. a 60 s soak (bench and long soaks are opt-in)
+test: $(STAMP) typecheck
 	$(VENV)/bin/ruff check protocol filters sim daemon tests
 	$(VENV)/bin/python -m pytest
+
+## typecheck: mypy over the four packages, through links that give them their import names
+typecheck: $(STAMP)
+	rm -rf build/typecheck && mkdir -p build/typecheck/lunad
+	for p in protocol filters sim daemon; do ln -s ../../../$$p build/typecheck/lunad/$$p; done
+	$(VENV)/bin/mypy build/typecheck/lunad
 
 ## install: as root, install the systemd service (venv in $(PREFIX), lunad@.service); DESTDIR= stages
 install:

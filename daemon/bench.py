@@ -270,6 +270,7 @@ def bench_bulk(n_frames: int = 1_000_000, repeats: int = 5, check: bool = True) 
     import time
 
     from lunad.protocol.bulk import decode_bulk
+    from lunad.protocol.frame import Frame
     from lunad.protocol.parser import FrameParser
 
     data = synthetic_stream(n_frames)
@@ -286,7 +287,7 @@ def bench_bulk(n_frames: int = 1_000_000, repeats: int = 5, check: bool = True) 
     same = True
     if check:
         part = decode_bulk(data[:n_check])
-        got = [(f.dist, f.amp, f.temp_raw) for f in parsed if hasattr(f, "dist")]
+        got = [(f.dist, f.amp, f.temp_raw) for f in parsed if type(f) is Frame]
         same = got == list(
             zip(part.dist.tolist(), part.amp.tolist(), part.temp_raw.tolist(), strict=True)
         )
@@ -380,8 +381,8 @@ def bench_pipeline(n_frames: int = 50_000) -> PipelineResult:
     seq = 0
     t0 = time.perf_counter()
     for chunk, t in zip(chunks, ts, strict=True):
-        for f in parser.feed(chunk, t):
-            e = filt.step(f.distance_m, f.amp, f.t_mono_ns)  # type: ignore[union-attr]
+        for fr in parser.feed(chunk, t):
+            e = filt.step(fr.distance_m, fr.amp, fr.t_mono_ns)  # type: ignore[union-attr]
             reasons = rcache.get(e.reasons)
             if reasons is None:
                 reasons = rcache[e.reasons] = reasons_json(e.reasons)
@@ -390,9 +391,9 @@ def bench_pipeline(n_frames: int = 50_000) -> PipelineResult:
                 seq,
                 t,
                 t,
-                f.distance_m,  # type: ignore[union-attr]
-                f.amp,  # type: ignore[union-attr]
-                f.temp_c,  # type: ignore[union-attr]
+                fr.distance_m,  # type: ignore[union-attr]
+                fr.amp,  # type: ignore[union-attr]
+                fr.temp_c,  # type: ignore[union-attr]
                 e.strength,
                 e.range_m,
                 e.sigma_m,

@@ -43,7 +43,7 @@ def _positive_int(text: str) -> int:
     return value
 
 
-def add_parser(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Register ``sweep`` on the ``lunad`` command line."""
     p = subparsers.add_parser(
         "sweep",
@@ -98,11 +98,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[
 
 
 def _profiles(choice: str) -> list[Profile]:
-    return {
+    profiles: dict[str, list[Profile]] = {
         "paper": [PAPER_METRES],
         "calibrated": [CALIBRATED_DEFAULT],
         "both": [PAPER_METRES, CALIBRATED_DEFAULT],
-    }[choice]
+    }
+    return profiles[choice]
 
 
 def _run_fit() -> int:

@@ -27,6 +27,7 @@ import select
 import threading
 from collections.abc import Callable
 from pathlib import Path
+from typing import cast
 
 import zmq
 
@@ -96,7 +97,7 @@ class Publisher:
         sock = self._sock
         self.pending = False
         n = 0
-        while sock.getsockopt(_EVENTS) & _POLLIN:
+        while cast(int, sock.getsockopt(_EVENTS)) & _POLLIN:
             try:
                 msg = sock.recv(zmq.NOBLOCK)
             except zmq.Again:
@@ -117,7 +118,7 @@ class Publisher:
 
     def start_waker(self, wake: Callable[[], None]) -> None:
         """Call ``wake`` (from a thread) whenever the socket may have a new subscription."""
-        fd = self._sock.getsockopt(zmq.FD)
+        fd = cast(int, self._sock.getsockopt(zmq.FD))
         self._waker_stop_r, self._waker_stop_w = os.pipe()
 
         def run() -> None:

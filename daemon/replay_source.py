@@ -18,26 +18,19 @@ import logging
 import os
 import time
 from pathlib import Path
-from typing import Protocol
+from typing import TYPE_CHECKING
 
 from lunad.daemon.errors import SourceOpenError
 from lunad.daemon.record import Pacer, Replay, check_speed
 from lunad.daemon.source import Chunk, Source
 from lunad.daemon.wakeup import Wakeup
 
+if TYPE_CHECKING:
+    from lunad.daemon.config import SourceSection
+
 log = logging.getLogger(__name__)
 
 MAX_GAP_S = 1.0  # recorded silences longer than this replay as this long (seconds)
-
-
-class ReplayConfig(Protocol):
-    """The config fields this backend reads (``[source]`` with ``kind = "replay"``)."""
-
-    @property
-    def path(self) -> str | os.PathLike[str]: ...
-
-    @property
-    def speed(self) -> float | None: ...
 
 
 class ReplaySource(Source):
@@ -75,8 +68,10 @@ class ReplaySource(Source):
         self._due_s: float | None = None
 
     @classmethod
-    def from_config(cls, cfg: ReplayConfig) -> ReplaySource:
+    def from_config(cls, cfg: SourceSection) -> ReplaySource:
         """Open the recording ``cfg.path`` at ``cfg.speed`` (None: as fast as possible)."""
+        if cfg.path is None:
+            raise SourceOpenError("[source] path: a replay needs the recording's path")
         return cls(cfg.path, cfg.speed)
 
     @property

@@ -38,7 +38,7 @@ class SerialSource(Source):
         ser = self._ser
         # The port and pyserial's abort pipe, polled together; None for URL ports.
         self._poll: Callable[[float | None], list[tuple[int, int]]] | None = None
-        if type(ser) is serial.Serial:
+        if type(ser) is serial.Serial and ser.fd is not None and ser.pipe_abort_read_r is not None:
             self._fd: int = ser.fd
             self._abort: int = ser.pipe_abort_read_r
             poller = select.poll()

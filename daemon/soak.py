@@ -344,18 +344,18 @@ class Ledger:
                 good = look[off + e - 9 : off + e]
                 real = (good[2] | good[3] << 8, good[4] | good[5] << 8)
                 last = items[-1] if items else None
-                found = type(last) is Frame and (last.dist, last.amp) == real  # type: ignore[union-attr]
+                found = type(last) is Frame and (last.dist, last.amp) == real
                 frames = [f for f in items if type(f) is Frame]
                 self.false_frames += len(frames) - (1 if found else 0)
                 self.eaten += 0 if found else 1
                 self.good_sent += 1
                 for f in frames:
-                    self._reference(f, t_ns)  # type: ignore[arg-type]
+                    self._reference(f, t_ns)
                 pos = e
-            for f in feed(data[pos:], 0):
-                if type(f) is Frame:
+            for item in feed(data[pos:], 0):
+                if type(item) is Frame:
                     self.false_frames += 1
-                    self._reference(f, t_ns)  # type: ignore[arg-type]
+                    self._reference(item, t_ns)
             self._carry = look[-8:]
 
     def _reference(self, f: Frame, t_write: int) -> None:
@@ -1283,7 +1283,7 @@ class Soak:
             shutil.rmtree(self.work, ignore_errors=True)
         return rep
 
-    def _record_written(self, data: bytes, ends: list[int], t_ns: int) -> None:
+    def _record_written(self, data: bytes, ends: list[int], t_ns: int = 0) -> None:
         assert self._sensor_rec is not None
         self._sensor_rec(Chunk(data, t_ns))
         self.ledger.on_written(data, ends, t_ns)
@@ -1539,8 +1539,8 @@ def format_report(r: SoakReport) -> str:
     stop = "" if r.daemon_stop_s is None else f" {r.daemon_stop_s:.2f} s after SIGTERM"
     out.append(f"  daemon exit code {r.daemon_exit_code}{stop}")
     out += ["", "conditions"]
-    for k, v in r.conditions.items():
-        out.append(f"  {'ok  ' if v else 'FAIL'}  {k.replace('_', ' ')}")
+    for name, ok in r.conditions.items():
+        out.append(f"  {'ok  ' if ok else 'FAIL'}  {name.replace('_', ' ')}")
     out.append("")
     if r.passed:
         out.append("PASS: every valid frame published, every fault recovered within 5 s, "

@@ -196,6 +196,7 @@ class RangeFilter:
 
         # Gates with hysteresis (policy.py: DropoutPolicy.gate).
         z: float | None = None  # the reading, when it may feed the filter
+        reasons: tuple[Reason, ...]
         if amp > AMP_AMBIENT:
             reasons = _SATURATED if amp == AMP_SATURATED else _AMBIENT
         else:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 import math
-from typing import Annotated, ClassVar, Literal
+from typing import Annotated, ClassVar, Final, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -22,7 +22,7 @@ HEALTH_TOPIC = "health"
 MIN_RANGE_M = 0.2  # blind zone, M05 p.10
 MAX_RANGE_M = 8.0  # range at 90 % reflectivity, DS p.2
 FOV_RAD = math.radians(2.0)  # 2 degrees, DS p.2
-RADIATION_TYPE = "infrared"  # 850 nm VCSEL, DS p.2
+RADIATION_TYPE: Final = "infrared"  # 850 nm VCSEL, DS p.2
 
 Status = Literal["ok", "degraded", "dropout"]
 ReasonName = Literal["weak_signal", "saturated", "out_of_range", "outlier", "high_ambient", "stale"]

@@ -242,7 +242,7 @@ def _metrics(
             near[i] = 1
         for i in range(f, min(n, f + STEP_GRACE_FRAMES)):
             grace[i] = 1
-    published = sq = away = bad = judged = inside = with_sigma = 0
+    published = away = bad = judged = inside = with_sigma = 0
     sq = 0.0
     for i in range(n):
         e = est[i]

@@ -203,7 +203,7 @@ def to_profile(x: FloatArray) -> CalibratedProfile:
     for n in _EXPONENTS:
         values[n] = min(max(values[n], EXPONENT_BOUNDS[0]), EXPONENT_BOUNDS[1])
     values["s0"] = max(values["s0"], S0_MIN)
-    return CalibratedProfile(**values)
+    return CalibratedProfile(**values)  # type: ignore[arg-type]  # keys: PARAM_NAMES, all floats
 
 
 def nelder_mead(

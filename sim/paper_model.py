@@ -90,7 +90,10 @@ class CellStats:
 class Profile(Protocol):
     """A sensor model the sweep can run: a noise level and a detection rule per cell."""
 
-    name: str
+    @property
+    def name(self) -> str:
+        """Short name for tables and plots."""
+        ...
 
     def error_sd_m(self, lux: FloatArray, r: FloatArray, theta_deg: FloatArray) -> FloatArray:
         """Standard deviation of D_meas - D_true per cell, metres."""

@@ -379,8 +379,11 @@ def test_replay_source_ignores_writes_and_closes_twice(recording: Path) -> None:
 
 
 def test_replay_source_from_config_and_errors(recording: Path, tmp_path: Path) -> None:
-    with ReplaySource.from_config(SimpleNamespace(path=recording, speed=2.0)) as src:
+    cfg = SimpleNamespace(path=recording, speed=2.0)
+    with ReplaySource.from_config(cfg) as src:  # type: ignore[arg-type]
         assert str(src).endswith("at 2x")
+    with pytest.raises(SourceOpenError, match=r"\[source\] path"):
+        ReplaySource.from_config(SimpleNamespace(path=None, speed=1.0))  # type: ignore[arg-type]
     with pytest.raises(SourceOpenError, match="missing"):
         ReplaySource(tmp_path / "missing.lunarec")
     with pytest.raises(ValueError, match="speed"):
