@@ -113,6 +113,7 @@ def test_unit_has_the_lifecycle_settings() -> None:
     assert 2 <= watchdog_s <= 60
     assert int(unit["StartLimitBurst"][0]) <= 10 and int(unit["StartLimitIntervalSec"][0]) > 0
     assert svc["RuntimeDirectory"] == ["lunad"] and svc["RuntimeDirectoryPreserve"] == ["yes"]
+    assert svc["StateDirectory"] == ["lunad"]  # [source] record under ProtectSystem=strict
     assert svc["User"] == ["lunad"] and "dialout" in svc["SupplementaryGroups"][0]
     assert svc["DevicePolicy"] == ["closed"]
     allowed = {v.split()[0] for v in svc["DeviceAllow"]}
