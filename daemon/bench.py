@@ -350,14 +350,14 @@ def bench_pipeline(n_frames: int = 50_000) -> PipelineResult:
     reference_s = time.perf_counter() - t0
     del refs
 
-    rcache: dict[tuple[str, ...], str] = {}
+    rcache: dict[tuple[str, ...], bytes] = {}
     t0 = time.perf_counter()
     for seq, (f, e) in enumerate(zip(frames, ests, strict=True)):
         reasons = rcache.get(e.reasons)
         if reasons is None:
             reasons = rcache[e.reasons] = reasons_json(e.reasons)
         encode_range(
-            '"tfluna"',
+            b'"tfluna"',
             seq,
             f.t_mono_ns,
             f.t_mono_ns,
@@ -368,9 +368,9 @@ def bench_pipeline(n_frames: int = 50_000) -> PipelineResult:
             e.range_m,
             e.sigma_m,
             e.lux_est,
-            e.status.value,
+            e.status,
             reasons,
-            e.zone.value,
+            e.zone,
         )
     encode_s = time.perf_counter() - t0
 
@@ -387,7 +387,7 @@ def bench_pipeline(n_frames: int = 50_000) -> PipelineResult:
             if reasons is None:
                 reasons = rcache[e.reasons] = reasons_json(e.reasons)
             encode_range(
-                '"tfluna"',
+                b'"tfluna"',
                 seq,
                 t,
                 t,
@@ -398,9 +398,9 @@ def bench_pipeline(n_frames: int = 50_000) -> PipelineResult:
                 e.range_m,
                 e.sigma_m,
                 e.lux_est,
-                e.status.value,
+                e.status,
                 reasons,
-                e.zone.value,
+                e.zone,
             )
             seq += 1
     total_s = time.perf_counter() - t0

@@ -96,7 +96,7 @@ class Daemon:
         self.seq = -1
         self._unsent: tuple[Frame, float | None, Estimate, int] | None = None
         """``publish_hz``: the latest frame's estimate, until a publish time sends it."""
-        self._reasons_json: dict[tuple[str, ...], str] = {}
+        self._reasons_json: dict[tuple[str, ...], bytes] = {}
         self.filter = RangeFilter(cfg.filter.to_filter_config())
         self._apply(cfg)
 
@@ -110,7 +110,7 @@ class Daemon:
         self._waiting_after_ns = int(
             max(WAITING_AFTER_S, WAITING_PERIODS / cfg.sensor.frame_rate_hz) * NS
         )
-        self._sensor_json = json.dumps(cfg.sensor.name)
+        self._sensor_json = json.dumps(cfg.sensor.name).encode()
         self._range_topic = topic("range", cfg.sensor.name)
         self._health_topic = topic("health", cfg.sensor.name)
         logging.getLogger("lunad").setLevel(cfg.log_level.upper())
@@ -391,7 +391,7 @@ class Daemon:
             range_m,
             sigma_m,
             lux_est,
-            status,  # StrEnum: formats as its value
+            status,
             reasons_js,
             zone,
         )

@@ -87,7 +87,7 @@ def topic(kind: str, sensor: str) -> bytes:
 
 
 def encode_range(
-    sensor_json: str,
+    sensor_json: bytes,
     seq: int,
     t_mono_ns: int,
     t_unix_ns: int,
@@ -99,46 +99,73 @@ def encode_range(
     sigma_m: float | None,
     lux_est: float | None,
     status: str,
-    reasons_json: str,
+    reasons_json: bytes,
     zone: str,
 ) -> bytes:
     """JSON of a ``range`` message, built without validation (hot path).
 
     Args:
         sensor_json: the sensor name already JSON-encoded (with quotes), done once.
-        reasons_json: the reasons list already JSON-encoded, e.g. ``'["weak_signal"]'``.
-        Everything else as in ``RangeMessage``; metres are rounded to 0.1 mm (sigma to 0.01 mm).
+        reasons_json: the reasons list already JSON-encoded, e.g. ``b'["weak_signal"]'``.
+        Everything else as in ``RangeMessage``; metres are rounded to 0.1 mm (sigma to
+        0.01 mm), lux to 0.1.
     """
-    return (
-        _RANGE_JSON
-        % (
+    if raw_m is not None and range_m is not None and sigma_m is not None and lux_est is not None:
+        return _RANGE_JSON % (
             sensor_json,
             seq,
             t_mono_ns,
             t_unix_ns,
-            "null" if raw_m is None else f"{raw_m:.4f}",
+            raw_m,
             amp,
             temp_c,
             strength,
-            "null" if range_m is None else f"{range_m:.4f}",
-            "null" if sigma_m is None else f"{sigma_m:.5f}",
-            "null" if lux_est is None else f"{lux_est:.1f}",
-            status,
+            range_m,
+            sigma_m,
+            lux_est,
+            status.encode(),
             reasons_json,
-            zone,
+            zone.encode(),
         )
-    ).encode()
+    return _RANGE_JSON_NULLS % (
+        sensor_json,
+        seq,
+        t_mono_ns,
+        t_unix_ns,
+        b"null" if raw_m is None else b"%.4f" % raw_m,
+        amp,
+        temp_c,
+        strength,
+        b"null" if range_m is None else b"%.4f" % range_m,
+        b"null" if sigma_m is None else b"%.5f" % sigma_m,
+        b"null" if lux_est is None else b"%.1f" % lux_est,
+        status.encode(),
+        reasons_json,
+        zone.encode(),
+    )
 
 
 _RANGE_JSON = (
-    '{"v":1,"sensor":%s,"seq":%d,"t_mono_ns":%d,"t_unix_ns":%d,"raw_m":%s,"amp":%d,'
-    '"temp_c":%.3f,"strength":%.5f,"range_m":%s,"sigma_m":%s,"lux_est":%s,'
-    '"status":"%s","reasons":%s,"zone":"%s"}'
+    b'{"v":1,"sensor":%b,"seq":%d,"t_mono_ns":%d,"t_unix_ns":%d,"raw_m":%.4f,"amp":%d,'
+    b'"temp_c":%.3f,"strength":%.5f,"range_m":%.4f,"sigma_m":%.5f,"lux_est":%.1f,'
+    b'"status":"%b","reasons":%b,"zone":"%b"}'
 )
-"""One ``%`` format for the whole message: about 2.5x faster than an f-string of
-``repr(round(x, n))`` calls (``lunad bench``, line "pipeline"). Fixed decimals
-(``1.9800``) parse to the same float as ``round(x, 4)``; ``tests/test_messages.py``
-checks that on random values."""
+"""One bytes ``%`` format for a whole message with every value present (most frames).
+
+Bytes and one template, rather than a str template with f-string floats and
+``.encode()``: one formatting path instead of three, the same output byte for byte.
+5.2 against 7.4 us a message hot, 39 against 59 us with the CPU caches evicted before
+each message (docs/performance.md, "Session 5"). Fixed decimals (``1.9800``) parse to
+the same float as ``round(x, 4)``; ``tests/test_messages.py`` checks that on random
+values."""
+
+_RANGE_JSON_NULLS = (
+    b'{"v":1,"sensor":%b,"seq":%d,"t_mono_ns":%d,"t_unix_ns":%d,"raw_m":%b,"amp":%d,'
+    b'"temp_c":%.3f,"strength":%.5f,"range_m":%b,"sigma_m":%b,"lux_est":%b,'
+    b'"status":"%b","reasons":%b,"zone":"%b"}'
+)
+"""The same message with ``raw_m``, ``range_m``, ``sigma_m`` and ``lux_est`` passed in
+already formatted, so that each can be ``null``."""
 
 
 def encode_health(msg: HealthMessage) -> bytes:
@@ -161,6 +188,6 @@ def decode(topic_frame: bytes, payload: bytes) -> Message:
     raise ValueError(f"unknown topic {topic_frame!r}")
 
 
-def reasons_json(reasons: tuple[str, ...]) -> str:
+def reasons_json(reasons: tuple[str, ...]) -> bytes:
     """The JSON list of reason names (cached by the caller per distinct tuple)."""
-    return json.dumps(list(reasons), separators=(",", ":"))
+    return json.dumps(list(reasons), separators=(",", ":")).encode()

@@ -13,7 +13,7 @@ from lunad.protocol.messages import RangeMessage, encode_range, topic
 
 def msg(seq: int) -> bytes:
     return encode_range(
-        '"c"', seq, 1, 2, 1.0, 500, 30.0, 0.25, 1.0, 0.01, 10.0, "ok", "[]", "stable"
+        b'"c"', seq, 1, 2, 1.0, 500, 30.0, 0.25, 1.0, 0.01, 10.0, "ok", b"[]", "stable"
     )
 
 

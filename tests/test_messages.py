@@ -40,7 +40,7 @@ CONTRACT_RANGE = {
 
 def test_encode_range_is_valid_json_and_schema() -> None:
     payload = encode_range(
-        json.dumps('front"x'),
+        json.dumps('front"x').encode(),
         7,
         123,
         456,
@@ -64,7 +64,7 @@ def test_encode_range_is_valid_json_and_schema() -> None:
 
 def test_encode_range_dropout_with_nulls() -> None:
     payload = encode_range(
-        '"s"',
+        b'"s"',
         0,
         1,
         2,
@@ -86,7 +86,7 @@ def test_encode_range_dropout_with_nulls() -> None:
 def test_schema_rejects_contract_breaks() -> None:
     good = json.loads(
         encode_range(
-            '"s"',
+            b'"s"',
             0,
             1,
             2,
@@ -98,7 +98,7 @@ def test_schema_rejects_contract_breaks() -> None:
             None,
             None,
             "dropout",
-            '["weak_signal"]',
+            b'["weak_signal"]',
             "unreliable",
         )
     )
@@ -156,7 +156,7 @@ def test_encode_range_values_are_the_rounded_inputs(
     temp_c = temp / 8 - 256  # the sensor's raw/8 - 256: exact in three decimals
     d = json.loads(
         encode_range(
-            '"s"', 1, 2, 3, raw, 100, temp_c, strength, rng, sigma, lux, "ok", "[]", "stable"
+            b'"s"', 1, 2, 3, raw, 100, temp_c, strength, rng, sigma, lux, "ok", b"[]", "stable"
         )
     )
 
