@@ -179,6 +179,7 @@ class I2CSource(Source):
         self.samples = 0
         self.stale_ticks = 0
         self.nacks = 0
+        self._last_error: str | None = None
         self.reboots = 0
         self.version = Version(0, 0, 0)
         self.signature = b""
@@ -231,6 +232,7 @@ class I2CSource(Source):
                 break
             except OSError as exc:
                 self.nacks += 1
+                self._last_error = f"{exc}{_hint(exc)}"
                 if attempt == OPEN_PROBE_TRIES - 1:
                     raise SourceOpenError(f"cannot open {self}: {exc}{_hint(exc)}") from exc
                 time.sleep(BACKOFF_FIRST_S * 2**attempt)
@@ -348,9 +350,15 @@ class I2CSource(Source):
         centi = s.temp_centi_c - 0x10000 if s.temp_centi_c >= 0x8000 else s.temp_centi_c
         return encode_frame(s.dist_cm, s.amp, temp_raw_from_c(centi / 100.0))
 
+    @property
+    def retried_errors(self) -> tuple[int, str | None]:
+        """Failed transfers so far (``nacks``) and the last one's error."""
+        return self.nacks, self._last_error
+
     def _failed(self, now: int, exc: OSError) -> None:
         """Count a failed transfer; retry the step (a read restarts at the trigger)."""
         self.nacks += 1
+        self._last_error = f"{exc}{_hint(exc)}"
         if self._failing_since_ns is None:
             self._failing_since_ns = now
         elif now - self._failing_since_ns >= LOST_AFTER_S * 1e9:

@@ -53,6 +53,16 @@ class Source(ABC):
         """True when the source has nothing more to give (the end of a recording)."""
         return False
 
+    @property
+    def retried_errors(self) -> tuple[int, str | None]:
+        """Transfer errors this source recovered from by retrying, and the last one.
+
+        (count since open, description); (0, None) for sources that never retry. The
+        daemon reports a rising count on ``health`` (DESIGN.md: a bus error is counted
+        and reported, and the daemon keeps running).
+        """
+        return 0, None
+
     def write(self, data: bytes) -> None:  # noqa: B027 - optional for read-only sources
         """Send command bytes to the sensor (sources that cannot send ignore them)."""
 

@@ -13,14 +13,20 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
 
 from lunad.daemon import i2c_source
+from lunad.daemon.config import SourceSection, load_config
 from lunad.daemon.errors import SourceLostError, SourceOpenError
 from lunad.daemon.i2c_source import I2CSource
+from lunad.daemon.notify import Notifier
+from lunad.daemon.publisher import Publisher
+from lunad.daemon.serve import Daemon
 from lunad.protocol import CommandReply, Frame, FrameParser, commands
+from lunad.protocol.client import Subscriber
 from lunad.protocol.commands import CommandId, Version, decode_reply
 from lunad.protocol.registers import Mode, Register
 from lunad.sim.fake_i2c import FakeSMBus
@@ -287,6 +293,55 @@ def test_persistent_nack_is_source_lost_after_backoff(
             src.read(0.25)
     assert time.monotonic() - t0 >= i2c_source.LOST_AFTER_S
     assert 5 <= src.nacks < 40  # backed off (5 ms doubling to 200 ms), not hammering the bus
+
+
+def test_daemon_reports_retried_nacks_on_health(fake: FakeSMBus, tmp_path: Path) -> None:
+    """A NACK the source retries is counted and shown in health's last_error (DESIGN.md)."""
+    endpoint = f"ipc://{tmp_path}/i2c.sock"
+    cfg = load_config(
+        None,
+        {
+            "source.kind": "i2c",
+            "sensor.name": "bus",
+            "sensor.frame_rate_hz": 100,
+            "publish.endpoint": endpoint,
+            "publish.health_interval_s": 0.1,
+        },
+    )
+
+    def open_on_fake(section: SourceSection) -> I2CSource:
+        return I2CSource(section.bus, section.address, smbus_factory=lambda _bus: fake)
+
+    daemon = Daemon(cfg, source_opener=open_on_fake, notifier=Notifier(None))
+    pub = Publisher(endpoint)
+    loop = threading.Thread(target=daemon.run, args=(pub,))
+    loop.start()
+    try:
+        with Subscriber(endpoint, sensor="bus") as sub:
+            deadline = time.monotonic() + 10
+            notes: list[str] = []
+            ranges_after = 0
+            nacked = False
+            while time.monotonic() < deadline and not (notes and ranges_after >= 20):
+                m = sub.recv(timeout_s=0.2)
+                if m is None:
+                    continue
+                if m.kind == "range" and not nacked:
+                    fake.nack(3)
+                    nacked = True
+                elif m.kind == "range":
+                    ranges_after += 1
+                elif m.kind == "health" and m.last_error:
+                    notes.append(m.last_error)
+            assert notes, "no health message reported the retried NACKs"
+            assert notes[-1].startswith("i2c bus 1 address 0x10: retried 3 failed transfer(s)")
+            assert "Errno 121" in notes[-1] and "NACK" in notes[-1]
+            assert ranges_after >= 20  # and the readings kept coming
+    finally:
+        daemon.request_stop()
+        loop.join(5)
+        pub.close()
+    assert not loop.is_alive()
 
 
 # -- UART command emulation -----------------------------------------------------------------
