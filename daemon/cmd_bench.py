@@ -258,4 +258,12 @@ def render_table(
     )
     lines = [head, ""]
     lines += [f"{a:<{w0}}  {b:<{w1}}  {c}".rstrip() for a, b, c in rows]
+    if floor.lat_p99_us > TARGETS["p99_us_max"]:
+        lines += [
+            "",
+            f"note: the floor's own p99 latency is {floor.lat_p99_us / 1000:.1f} ms, so this host "
+            "is busy: latency and CPU",
+            "ratios then say more about the host than about lunad (docs/performance.md). Run",
+            "again when it is quiet, or with --pin.",
+        ]
     return "\n".join(lines)

@@ -57,22 +57,26 @@ def test_table_renders_every_line() -> None:
     b = bench.BulkResult(10, 90, 3e6, 2e5, True)
     p = bench.PipelineResult(10, 1.0, 2.0, 3.0, 6.0, 2.5)
 
-    def summary(variant: str, hz: float | None) -> bench.ServeSummary:
-        return bench.ServeSummary(variant, hz, 1, 100.0, 2.5, 300.0, 600.0, 0.0, 50.0, 0.5)
+    def summary(variant: str, hz: float | None, p99_us: float = 600.0) -> bench.ServeSummary:
+        return bench.ServeSummary(variant, hz, 1, 100.0, 2.5, 300.0, p99_us, 0.0, 50.0, 0.5)
 
-    text = cmd_bench.render_table(
-        b,
-        p,
-        summary("lunad", None),
-        summary("floor", None),
-        summary("lunad", 50.0),
-        {"cpu": 1.0, "p99": 1.0, "hz_cpu": 1.0},
-        dict.fromkeys(
-            ("bulk_fps", "cpu_ratio", "p99", "idle_cpu", "rss", "hz_cpu_ratio", "startup"), True
-        ),
-        1,
-        2.0,
-    )
+    def render(floor_p99_us: float) -> str:
+        return cmd_bench.render_table(
+            b,
+            p,
+            summary("lunad", None),
+            summary("floor", None, floor_p99_us),
+            summary("lunad", 50.0),
+            {"cpu": 1.0, "p99": 1.0, "hz_cpu": 1.0},
+            dict.fromkeys(
+                ("bulk_fps", "cpu_ratio", "p99", "idle_cpu", "rss", "hz_cpu_ratio", "startup"),
+                True,
+            ),
+            1,
+            2.0,
+        )
+
+    text = render(600.0)
     for word in (
         "bulk decode",
         "pipeline",
@@ -86,6 +90,9 @@ def test_table_renders_every_line() -> None:
     ):
         assert word in text
     assert "MISSED" not in text
+    assert "busy" not in text
+    busy = render(21_800.0)  # a loaded host: the floor itself misses 1 ms
+    assert "floor's own p99 latency is 21.8 ms, so this host is busy" in busy
 
 
 @pytest.mark.parametrize("argv", [["--help"]])
