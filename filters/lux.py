@@ -30,6 +30,7 @@ go below sigma0 (a quieter sensor); only the published lux is clipped at 0.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 from lunad.filters.config import FilterConfig
 
@@ -48,6 +49,39 @@ def clipped_square_mean(clip_sigmas: float) -> float:
     inside = math.erf(c / math.sqrt(2.0))
     pdf = math.exp(-0.5 * c * c) / math.sqrt(2.0 * math.pi)
     return inside - 2.0 * c * pdf + c * c * (1.0 - inside)
+
+
+@dataclass(frozen=True, slots=True)
+class LuxConstants:
+    """What the estimator derives from its configuration once; shared with the flat
+    ``RangeFilter``, which copies these into its own slots.
+
+    Attributes:
+        clip2: square of the winsorising bound, in innovation variances.
+        inv_kappa: 1 / E[min(Z^2, clip^2)], the clipping's bias correction.
+        c2_init: starting c^2, m^2 (the configured ``lux_init``).
+        lux_init: the lux that ``c2_init`` reads as.
+        c2_floor: lowest c^2, m^2 (``C2_FLOOR_FRACTION`` sigma0^2).
+    """
+
+    clip2: float
+    inv_kappa: float
+    c2_init: float
+    lux_init: float
+    c2_floor: float
+
+    @classmethod
+    def of(cls, config: FilterConfig) -> LuxConstants:
+        """The constants for ``config``."""
+        c_init = config.sigma0_m + config.k_m_per_lux * config.lux_init
+        c2_init = c_init * c_init
+        return cls(
+            clip2=config.lux_clip_sigmas * config.lux_clip_sigmas,
+            inv_kappa=1.0 / clipped_square_mean(config.lux_clip_sigmas),
+            c2_init=c2_init,
+            lux_init=lux_of(c2_init, config.sigma0_m, config.k_m_per_lux),
+            c2_floor=C2_FLOOR_FRACTION * config.sigma0_m * config.sigma0_m,
+        )
 
 
 class LuxEstimator:
@@ -85,12 +119,12 @@ class LuxEstimator:
         self._k = config.k_m_per_lux
         self._tau_s = config.lux_tau_s
         self._tau_zone_s = config.lux_zone_tau_s
-        self._clip2 = config.lux_clip_sigmas * config.lux_clip_sigmas
-        self._inv_kappa = 1.0 / clipped_square_mean(config.lux_clip_sigmas)
-        c_init = config.sigma0_m + config.k_m_per_lux * config.lux_init
-        self._c2_init = c_init * c_init
-        self._lux_init = lux_of(self._c2_init, self._sigma0, self._k)
-        self._c2_floor = C2_FLOOR_FRACTION * config.sigma0_m * config.sigma0_m
+        derived = LuxConstants.of(config)
+        self._clip2 = derived.clip2
+        self._inv_kappa = derived.inv_kappa
+        self._c2_init = derived.c2_init
+        self._lux_init = derived.lux_init
+        self._c2_floor = derived.c2_floor
         self.reset()
 
     def reset(self) -> None:

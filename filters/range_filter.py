@@ -21,7 +21,7 @@ from math import sqrt
 
 from lunad.filters.config import AMP_AMBIENT, AMP_SATURATED, FilterConfig
 from lunad.filters.estimate import Estimate, Reason, Status, Zone
-from lunad.filters.lux import C2_FLOOR_FRACTION, clipped_square_mean, lux_of
+from lunad.filters.lux import LuxConstants
 from lunad.filters.policy import first_amp_at_least
 from lunad.filters.zone import ZoneClassifier
 
@@ -134,12 +134,12 @@ class RangeFilter:
         self._k = c.k_m_per_lux
         self._tau_s = c.lux_tau_s
         self._tau_zone_s = c.lux_zone_tau_s
-        self._clip2 = c.lux_clip_sigmas * c.lux_clip_sigmas
-        self._inv_kappa = 1.0 / clipped_square_mean(c.lux_clip_sigmas)
-        c_init = c.sigma0_m + c.k_m_per_lux * c.lux_init
-        self._c2_init = c_init * c_init
-        self._lux_init = lux_of(self._c2_init, c.sigma0_m, c.k_m_per_lux)
-        self._c2_floor = C2_FLOOR_FRACTION * c.sigma0_m * c.sigma0_m
+        lux = LuxConstants.of(c)
+        self._clip2 = lux.clip2
+        self._inv_kappa = lux.inv_kappa
+        self._c2_init = lux.c2_init
+        self._lux_init = lux.lux_init
+        self._c2_floor = lux.c2_floor
         self.zones = ZoneClassifier(c)
         self.reset()
 
