@@ -325,12 +325,10 @@ class I2CSource(Source):
             self._stale_run += 1
             self._retrying = True
             if self._stale_run >= STALE_REBOOT_AFTER:
-                log.warning(
-                    "%s: TICK stuck at %d for %d reads, sensor hung; rebooting it",
-                    self,
-                    s.tick,
-                    self._stale_run,
+                self._last_error = (
+                    f"TICK stuck at {s.tick} for {self._stale_run} reads: sensor hung, rebooted it"
                 )
+                log.warning("%s: %s", self, self._last_error)
                 self._step = _Step.REBOOT
                 self._stale_run = 0
                 self._due_ns = now
@@ -351,9 +349,9 @@ class I2CSource(Source):
         return encode_frame(s.dist_cm, s.amp, temp_raw_from_c(centi / 100.0))
 
     @property
-    def retried_errors(self) -> tuple[int, str | None]:
-        """Failed transfers so far (``nacks``) and the last one's error."""
-        return self.nacks, self._last_error
+    def recovered_faults(self) -> tuple[int, str | None]:
+        """Failed transfers retried (``nacks``) plus ``reboots``, and the last fault."""
+        return self.nacks + self.reboots, self._last_error
 
     def _failed(self, now: int, exc: OSError) -> None:
         """Count a failed transfer; retry the step (a read restarts at the trigger)."""

@@ -156,8 +156,8 @@ class Daemon:
         self._version_deadline: int | None = None
         self._open_failures = 0
         self._last_retry_log = 0
-        self._retried_seen = 0
-        self._last_retried_log = -int(RETRY_LOG_EVERY_S * NS)
+        self._recovered_seen = 0
+        self._last_recovered_log = -int(RETRY_LOG_EVERY_S * NS)
         self._next_publish = now
         self._unix_offset_ns = time.time_ns() - time.monotonic_ns()
         notifier = self.notifier
@@ -436,7 +436,7 @@ class Daemon:
         assert pub is not None
         self._unix_offset_ns = time.time_ns() - time.monotonic_ns()
         if self._source is not None:
-            self._note_retried_errors(self._source, now)
+            self._note_recovered_faults(self._source, now)
         msg = self.health.message(self.parser.stats, pub.dropped_sends, now)
         pub.send(self._health_topic, encode_health(msg))
         self._next_health = now + int(self.cfg.publish.health_interval_s * NS)
@@ -445,19 +445,18 @@ class Daemon:
             f"{msg.frames} frames, {msg.checksum_errors} checksum errors"
         )
 
-    def _note_retried_errors(self, src: Source, now: int) -> None:
-        """Put errors the source retried by itself (I2C NACKs) on health and in the log."""
-        count, last = src.retried_errors
-        if count <= self._retried_seen:
+    def _note_recovered_faults(self, src: Source, now: int) -> None:
+        """Put faults the source got over by itself (I2C NACKs retried, a hung sensor
+        rebooted) on health and in the log."""
+        count, last = src.recovered_faults
+        if count <= self._recovered_seen:
             return
-        self._retried_seen = count
-        note = (
-            f"{self._source_desc()}: retried {count} failed transfer(s) since opening; last: {last}"
-        )
+        self._recovered_seen = count
+        note = f"{self._source_desc()}: recovered from {count} fault(s) since opening; last: {last}"
         self.health.last_error = note
-        if now - self._last_retried_log >= RETRY_LOG_EVERY_S * NS:
+        if now - self._last_recovered_log >= RETRY_LOG_EVERY_S * NS:
             log.warning("%s", note)
-            self._last_retried_log = now
+            self._last_recovered_log = now
 
     def _try_open(self, now: int) -> None:
         try:
@@ -479,7 +478,7 @@ class Daemon:
         failures = self._open_failures
         log.info("opened %s%s", self._source, f" after {failures} failed tries" if failures else "")
         self._open_failures = 0
-        self._retried_seen = 0
+        self._recovered_seen = 0
         self._backoff = BACKOFF_FIRST_S
         self._last_bytes = now
         self._set_state(State.WAITING, now)

@@ -54,12 +54,13 @@ class Source(ABC):
         return False
 
     @property
-    def retried_errors(self) -> tuple[int, str | None]:
-        """Transfer errors this source recovered from by retrying, and the last one.
+    def recovered_faults(self) -> tuple[int, str | None]:
+        """Faults this source recovered from by itself, and the last one.
 
-        (count since open, description); (0, None) for sources that never retry. The
-        daemon reports a rising count on ``health`` (DESIGN.md: a bus error is counted
-        and reported, and the daemon keeps running).
+        (count since open, description): a transfer retried after an error, a hung
+        sensor rebooted. (0, None) for sources that never do either. The daemon
+        reports a rising count on ``health`` (DESIGN.md: a bus error is counted and
+        reported, and the daemon keeps running).
         """
         return 0, None
 

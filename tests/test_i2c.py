@@ -295,8 +295,9 @@ def test_persistent_nack_is_source_lost_after_backoff(
     assert 5 <= src.nacks < 40  # backed off (5 ms doubling to 200 ms), not hammering the bus
 
 
-def test_daemon_reports_retried_nacks_on_health(fake: FakeSMBus, tmp_path: Path) -> None:
-    """A NACK the source retries is counted and shown in health's last_error (DESIGN.md)."""
+def _health_notes_after(fake: FakeSMBus, tmp_path: Path, fault: Callable[[], None]) -> list[str]:
+    """Serve the fake through a real ``Daemon`` and ZeroMQ; inject ``fault`` after the first
+    reading; return every ``last_error`` health reported, once 20 more readings came."""
     endpoint = f"ipc://{tmp_path}/i2c.sock"
     cfg = load_config(
         None,
@@ -316,32 +317,49 @@ def test_daemon_reports_retried_nacks_on_health(fake: FakeSMBus, tmp_path: Path)
     pub = Publisher(endpoint)
     loop = threading.Thread(target=daemon.run, args=(pub,))
     loop.start()
+    notes: list[str] = []
     try:
         with Subscriber(endpoint, sensor="bus") as sub:
             deadline = time.monotonic() + 10
-            notes: list[str] = []
             ranges_after = 0
-            nacked = False
+            injected = False
             while time.monotonic() < deadline and not (notes and ranges_after >= 20):
                 m = sub.recv(timeout_s=0.2)
                 if m is None:
                     continue
-                if m.kind == "range" and not nacked:
-                    fake.nack(3)
-                    nacked = True
+                if m.kind == "range" and not injected:
+                    fault()
+                    injected = True
                 elif m.kind == "range":
                     ranges_after += 1
                 elif m.kind == "health" and m.last_error:
                     notes.append(m.last_error)
-            assert notes, "no health message reported the retried NACKs"
-            assert notes[-1].startswith("i2c bus 1 address 0x10: retried 3 failed transfer(s)")
-            assert "Errno 121" in notes[-1] and "NACK" in notes[-1]
-            assert ranges_after >= 20  # and the readings kept coming
+            assert ranges_after >= 20, "the readings did not come back after the fault"
     finally:
         daemon.request_stop()
         loop.join(5)
         pub.close()
     assert not loop.is_alive()
+    return notes
+
+
+def test_daemon_reports_retried_nacks_on_health(fake: FakeSMBus, tmp_path: Path) -> None:
+    """A NACK the source retries is counted and shown in health's last_error (DESIGN.md)."""
+    notes = _health_notes_after(fake, tmp_path, lambda: fake.nack(3))
+    assert notes, "no health message reported the retried NACKs"
+    assert notes[-1].startswith("i2c bus 1 address 0x10: recovered from 3 fault(s) since opening")
+    assert "Errno 121" in notes[-1] and "NACK" in notes[-1]
+
+
+def test_daemon_reports_a_rebooted_sensor_on_health(fake: FakeSMBus, tmp_path: Path) -> None:
+    """A hung sensor (TICK stuck) that the source reboots shows in health's last_error."""
+    notes = _health_notes_after(fake, tmp_path, lambda: fake.stall(1_000_000))
+    assert notes, "no health message reported the reboot"
+    assert notes[-1].startswith("i2c bus 1 address 0x10: recovered from 1 fault(s) since opening")
+    assert notes[-1].endswith(
+        f"for {i2c_source.STALE_REBOOT_AFTER} reads: sensor hung, rebooted it"
+    )
+    assert fake.reboots == 1
 
 
 # -- UART command emulation -----------------------------------------------------------------

@@ -254,39 +254,50 @@ def test_every_system_call_the_daemon_makes_is_allowed(
     device: Callable[..., PtyDevice], tmp_path: Path
 ) -> None:
     dev = device(rate_hz=100, output_enabled=False)
-    endpoint = write_instance_config(tmp_path, "front", dev.path)
+    write_instance_config(tmp_path, "front", dev.path)
     env = unit_environment(tmp_path)
     notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)  # as under systemd
     notify.bind(str(tmp_path / "notify.sock"))
     env |= {"NOTIFY_SOCKET": str(tmp_path / "notify.sock"), "WATCHDOG_USEC": "1000000"}
+    notify.settimeout(0.2)
     trace = tmp_path / "trace"
     argv = ["strace", "-f", "-qq", "-o", str(trace), *exec_start_argv("front", env)]
-    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+    err_path = tmp_path / "stderr"
+    with err_path.open("wb") as err_file:
+        proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=err_file, env=env)
+
+    def stderr_text() -> str:
+        return err_path.read_text(errors="replace")
+
+    def await_notification(field: bytes, within_s: float = 20.0) -> None:
+        deadline = time.monotonic() + within_s
+        while time.monotonic() < deadline and proc.poll() is None:
+            try:
+                if field in notify.recv(4096).split(b"\n"):
+                    return
+            except TimeoutError:
+                continue
+        err = stderr_text()
+        if proc.poll() is not None and ("ptrace" in err or "Operation not permitted" in err):
+            pytest.skip(f"strace cannot trace here: {err.strip()}")
+        pytest.fail(f"no {field.decode()} from the daemon; its stderr:\n{err}")
+
     try:
-        sock_path = Path(endpoint.removeprefix("ipc://"))
-        deadline = time.monotonic() + 10
-        while not sock_path.exists() and proc.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.05)
-        if proc.poll() is not None:
-            err = proc.stderr.read().decode() if proc.stderr else ""
-            if "ptrace" in err or "Operation not permitted" in err:
-                pytest.skip(f"strace cannot trace here: {err.strip()}")
-            pytest.fail(err)
+        await_notification(b"READY=1")
         time.sleep(1.0)  # frames flowing, watchdog and health running
         children = subprocess.run(
             ["pgrep", "-P", str(proc.pid)], capture_output=True, text=True
         ).stdout.split()
         daemon_pid = int(children[0])
         os.kill(daemon_pid, signal.SIGHUP)
-        time.sleep(0.5)
+        await_notification(b"RELOADING=1")
+        await_notification(b"READY=1")
         os.kill(daemon_pid, signal.SIGTERM)
-        assert proc.wait(10) == 0
+        assert proc.wait(10) == 0, stderr_text()
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-        if proc.stderr:
-            proc.stderr.close()
         notify.close()
     used = set(re.findall(r"^\d+\s+([a-z_0-9]+)\(", trace.read_text(), re.MULTILINE))
     assert {"openat", "sendto"} <= used  # the trace is real
