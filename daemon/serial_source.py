@@ -9,8 +9,10 @@ ready (serialposix.py); that, and any OSError, is ``SourceLostError`` here.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import select
+import termios
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
@@ -18,6 +20,8 @@ import serial
 
 from lunad.daemon.errors import SourceLostError, SourceOpenError
 from lunad.daemon.source import Source
+
+VMIN_MAX = 255  # termios VMIN is one byte (termios(3))
 
 if TYPE_CHECKING:
     from lunad.daemon.config import SourceSection
@@ -36,6 +40,7 @@ class SerialSource(Source):
         except (serial.SerialException, OSError, ValueError) as exc:
             raise SourceOpenError(f"cannot open {device}: {exc}") from exc
         ser = self._ser
+        self._vmin = 0  # VMIN set by ``batch``; pyserial opens with 0
         # The port and pyserial's abort pipe, polled together; None for URL ports.
         self._poll: Callable[[float | None], list[tuple[int, int]]] | None = None
         if type(ser) is serial.Serial and ser.fd is not None and ser.pipe_abort_read_r is not None:
@@ -50,6 +55,28 @@ class SerialSource(Source):
     def from_config(cls, cfg: SourceSection) -> SerialSource:
         """Open the port ``cfg`` names."""
         return cls(cfg.device, cfg.baud)
+
+    def batch(self, nbytes: int) -> bool:
+        """Hold reads until ``nbytes`` (at most 255) are waiting: the tty's VMIN.
+
+        The kernel then keeps ``poll`` from reporting the port readable until VMIN
+        bytes are queued (n_tty's ``input_available_p``), so the reader sleeps through
+        the frames in between with no timer and no wake-up. A real port only; URL
+        ports return False (their pyserial path has no VMIN). Checked on Linux with a
+        pty: ``poll`` waits for VMIN bytes, and reports a hang-up at once as before.
+        """
+        if self._poll is None:
+            return nbytes <= 1
+        vmin = min(nbytes, VMIN_MAX) if nbytes > 1 else 0
+        try:
+            attrs = termios.tcgetattr(self._fd)
+            attrs[6][termios.VMIN] = vmin
+            attrs[6][termios.VTIME] = 0
+            termios.tcsetattr(self._fd, termios.TCSANOW, attrs)
+        except (termios.error, OSError):
+            return nbytes <= 1
+        self._vmin = vmin
+        return True
 
     def _read(self, timeout_s: float | None) -> bytes:
         """One ``poll`` and one ``read`` on a real port; pyserial's path for URLs.
@@ -110,7 +137,10 @@ class SerialSource(Source):
                 pass
 
     def close(self) -> None:
-        """Close the port; safe to call twice."""
+        """Close the port (VMIN back to 0 for whoever opens it next); safe to call twice."""
+        if self._poll is not None and self._vmin:
+            with contextlib.suppress(termios.error, OSError):
+                self.batch(0)
         self._poll = None
         try:
             self._ser.close()

@@ -16,9 +16,11 @@ the housekeeping at the next deadline or when a flag asks for it. ``t_unix_ns`` 
 the frame's monotonic read time plus an offset to the wall clock refreshed with every
 health message, so a wall-clock step shows up within one health interval.
 
-Low-power mode (``publish_hz``): the loop sleeps until the next publish time, reads
-everything the port holds, filters every frame and publishes only the latest; ``seq``
-still counts every frame, so subscribers see how many were folded.
+Low-power mode (``publish_hz``): the loop wakes about once per message, not per frame.
+On a serial port it sleeps in a read that the kernel holds until a message's worth of
+frames has arrived (the tty's VMIN, ``Source.batch``); other sources are read at each
+publish time. It filters every frame and publishes only the latest; ``seq`` still
+counts every frame, so subscribers see how many were folded.
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ from lunad.daemon.wakeup import Wakeup
 from lunad.filters import Estimate, RangeFilter, Status
 from lunad.protocol import commands
 from lunad.protocol.commands import CommandId, CommandReply, decode_reply
-from lunad.protocol.frame import Frame
+from lunad.protocol.frame import DATA_FRAME_LEN, Frame
 from lunad.protocol.messages import encode_health, encode_range, reasons_json, topic
 from lunad.protocol.parser import FrameParser
 
@@ -96,6 +98,8 @@ class Daemon:
         self.seq = -1
         self._unsent: tuple[Frame, float | None, Estimate, int] | None = None
         """``publish_hz``: the latest frame's estimate, until a publish time sends it."""
+        self._batched: Source | None = None
+        """``publish_hz``: the source holding its reads until a message's frames came."""
         self._reasons_json: dict[tuple[str, ...], bytes] = {}
         self.filter = RangeFilter(cfg.filter.to_filter_config())
         self._apply(cfg)
@@ -107,6 +111,7 @@ class Daemon:
         self.cfg = cfg
         self._frame_period_ns = int(NS / cfg.sensor.frame_rate_hz)
         self._publish_period_ns = int(NS / (cfg.publish.publish_hz or cfg.sensor.frame_rate_hz))
+        self._unbatch()
         self._waiting_after_ns = int(
             max(WAITING_AFTER_S, WAITING_PERIODS / cfg.sensor.frame_rate_hz) * NS
         )
@@ -290,11 +295,15 @@ class Daemon:
     def _read_folded(self, src: Source, until_ns: int) -> bool:
         """Low-power inner loop (``publish_hz``): filter every frame, publish the latest.
 
-        While the sensor streams, it sleeps until each publish time, takes what the
-        port holds (about ``frame_rate / publish_hz`` frames) in one read, filters every
-        frame and publishes only the last. At ``until_ns`` it reads and filters too, so
-        that a slow ``publish_hz`` cannot let the port's buffer overflow; what it read
-        then waits for the next publish time.
+        While the sensor streams, a source that can batch (``Source.batch``: a serial
+        port's VMIN) holds each read until a message's worth of frames
+        (``frame_rate / publish_hz``, rounded up) has arrived, and the loop sleeps in
+        that read: one wake-up per message, no timer. Other sources are read at each
+        publish time: the loop sleeps until then and takes what the source holds.
+        Either way it filters every frame and publishes the last, at most
+        ``publish_hz`` times a second. When a batch stops coming for two publish
+        periods (the sensor paused mid-batch), batching is switched off, so that the
+        frames short of it are read; it comes back once frames flow again.
 
         The frames of one read arrived a frame period apart, so the filter gets them
         spaced so, ending at the read time; their messages keep the read time (the
@@ -314,25 +323,36 @@ class Daemon:
         step = self._step
         period = self._publish_period_ns
         spacing = self._frame_period_ns
+        batched = self._batched is src
+        if (
+            not batched
+            and health.state is _CONNECTED
+            and self._version_deadline is None
+            and monotonic_ns() - self._last_bytes < period
+        ):
+            self._unbatch()
+            if src.batch(DATA_FRAME_LEN * -(-period // spacing)):
+                self._batched = src
+                batched = True
         while not (self._stopping or self._reload_requested):
             if pub.pending:
                 pub.pump()
             now = monotonic_ns()
-            if health.state is _CONNECTED:
-                due = self._next_publish
-                tick = due if due < until_ns else until_ns
+            if health.state is _CONNECTED and not batched:
+                tick = self._next_publish
+                if tick > until_ns:
+                    tick = until_ns
                 if tick > now and wait((tick - now) / NS):
                     continue  # woken for a stop, a reload or a subscription
                 chunk = src.read(0.0)
-                now = monotonic_ns()
             elif until_ns > now:
                 chunk = src.read((until_ns - now) / NS)
-                now = monotonic_ns()
             else:
                 break
-            publish = now >= self._next_publish
-            if publish:
-                self._next_publish = max(self._next_publish + period, now)
+            now = monotonic_ns()
+            due = now >= self._next_publish
+            if due and not batched:
+                self._next_publish = max(self._next_publish + period, now)  # the sleep schedule
             if chunk is not None:
                 got = True
                 data, t_mono = chunk
@@ -349,9 +369,14 @@ class Daemon:
                         self._unsent = (item, raw_m, est, t_mono)
                     else:
                         self._on_reply(item)  # type: ignore[arg-type]
+            elif batched and now - self._last_bytes >= 2 * period:
+                self._unbatch()
+                batched = False
             unsent = self._unsent
-            if publish and unsent is not None:
+            if due and unsent is not None:
                 self._unsent = None
+                if batched:  # a period from this message, less half a frame of jitter
+                    self._next_publish = now + period - spacing // 2
                 frame, raw_m, est, t_read = unsent
                 self._send_range(frame, raw_m, est, t_read, t_read + self._unix_offset_ns)
             if chunk is not None and (
@@ -361,6 +386,14 @@ class Daemon:
             if now >= until_ns:
                 break
         return got
+
+    def _unbatch(self) -> None:
+        """Let the source batching reads for ``publish_hz`` return bytes as they come again."""
+        src = self._batched
+        if src is not None:
+            self._batched = None
+            if src is self._source:
+                src.batch(0)
 
     def _step(self, frame: Frame, raw_m: float | None, t_mono_ns: int) -> Estimate:
         """Filter one frame (``raw_m``: its distance, metres; taken at ``t_mono_ns``)

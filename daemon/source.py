@@ -64,6 +64,19 @@ class Source(ABC):
         """
         return 0, None
 
+    def batch(self, nbytes: int) -> bool:
+        """Hold a blocking ``read`` until ``nbytes`` have arrived; True if this source can.
+
+        With it, ``read(timeout_s)`` returns once at least ``nbytes`` are waiting, or
+        None at the timeout; bytes short of a batch stay queued until it fills or
+        ``batch(0)``. The low-power loop asks for one message's worth of frames, so it
+        sleeps in the read through the frames it folds instead of waking for each or
+        on a timer. ``nbytes`` <= 1 restores the default (return as soon as anything
+        arrives), which every source does; sources that cannot batch return False
+        for more.
+        """
+        return nbytes <= 1
+
     def write(self, data: bytes) -> None:  # noqa: B027 - optional for read-only sources
         """Send command bytes to the sensor (sources that cannot send ignore them)."""
 

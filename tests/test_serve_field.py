@@ -81,6 +81,8 @@ def test_publish_hz_folds_frames(
             m = sub.recv(timeout_s=0.5)
             if isinstance(m, RangeMessage):
                 seqs.append(m.seq)
+        # the daemon sleeps in a read the kernel holds until a message's 5 frames came
+        assert wait_until(lambda: dev.reader_vmin == 5 * 9, within_s=2.0)
         dev.pause(3600)
         deadline = time.monotonic() + 5.0  # health keeps coming: do not wait for silence
         while time.monotonic() < deadline and (m := sub.recv(timeout_s=0.5)) is not None:
@@ -94,6 +96,17 @@ def test_publish_hz_folds_frames(
     assert rate <= 55  # at most 50 a second: the contract; a late wake-up only lowers it
     assert seqs[-1] + 1 == dev.frames_sent  # seq still counts every frame
     assert max(b - a for a, b in itertools.pairwise(seqs)) >= 3  # frames folded
+    assert dev.reader_vmin == 0  # the paused sensor made it stop holding reads
+
+
+def wait_until(cond: Callable[[], bool], within_s: float) -> bool:
+    """Poll ``cond`` every 10 ms for up to ``within_s`` seconds."""
+    deadline = time.monotonic() + within_s
+    while not cond():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.01)
+    return True
 
 
 def test_publish_hz_gives_the_filter_a_backlogs_frames_a_frame_period_apart(
