@@ -242,7 +242,7 @@ def render_table(
         (
             f"  --publish-hz {hz} latency p50 / p99",
             f"{low.lat_p50_us:.0f} / {low.lat_p99_us:.0f} us",
-            "by design up to one period",
+            "of the frame it sends; no target",
         ),
         (
             f"  --publish-hz {hz} idle CPU, peak RSS",
