@@ -55,17 +55,17 @@ class SerialSource(Source):
         """Open the port ``cfg`` names."""
         return cls(cfg.device, cfg.baud)
 
-    def batch(self, nbytes: int) -> bool:
+    def batch(self, nbytes: int) -> int:
         """Hold reads until ``nbytes`` (at most 255) are waiting: the tty's VMIN.
 
         The kernel then keeps ``poll`` from reporting the port readable until VMIN
         bytes are queued (n_tty's ``input_available_p``), so the reader sleeps through
         the frames in between with no timer and no wake-up. A real port only; URL
-        ports return False (their pyserial path has no VMIN). Checked on Linux with a
+        ports return 0 (their pyserial path has no VMIN). Checked on Linux with a
         pty: ``poll`` waits for VMIN bytes, and reports a hang-up at once as before.
         """
         if self._poll is None:
-            return nbytes <= 1
+            return 0
         vmin = min(nbytes, VMIN_MAX) if nbytes > 1 else 0
         try:
             attrs = termios.tcgetattr(self._fd)
@@ -73,9 +73,9 @@ class SerialSource(Source):
             attrs[6][termios.VTIME] = 0
             termios.tcsetattr(self._fd, termios.TCSANOW, attrs)
         except (termios.error, OSError):
-            return nbytes <= 1
+            return 0
         self._vmin = vmin
-        return True
+        return vmin
 
     def _read(self, timeout_s: float | None) -> bytes:
         """One ``poll`` and one ``read`` on a real port; pyserial's path for URLs.

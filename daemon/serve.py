@@ -100,6 +100,8 @@ class Daemon:
         """``publish_hz``: the latest frame's estimate, until a publish time sends it."""
         self._batched: Source | None = None
         """``publish_hz``: the source holding its reads until a message's frames came."""
+        self._batch_stall_ns = 0
+        """``publish_hz``: no batch for this long means the sensor paused mid-batch."""
         self._reasons_json: dict[tuple[str, ...], bytes] = {}
         self.filter = RangeFilter(cfg.filter.to_filter_config())
         self._apply(cfg)
@@ -301,8 +303,8 @@ class Daemon:
         that read: one wake-up per message, no timer. Other sources are read at each
         publish time: the loop sleeps until then and takes what the source holds.
         Either way it filters every frame and publishes the last, at most
-        ``publish_hz`` times a second. When a batch stops coming for two publish
-        periods (the sensor paused mid-batch), batching is switched off, so that the
+        ``publish_hz`` times a second. When no batch has come for twice the time one
+        takes (the sensor paused mid-batch), batching is switched off, so that the
         frames short of it are read; it comes back once frames flow again.
 
         The frames of one read arrived a frame period apart, so the filter gets them
@@ -331,8 +333,10 @@ class Daemon:
             and monotonic_ns() - self._last_bytes < period
         ):
             self._unbatch()
-            if src.batch(DATA_FRAME_LEN * -(-period // spacing)):
+            held = src.batch(DATA_FRAME_LEN * -(-period // spacing))  # frames rounded up
+            if held:
                 self._batched = src
+                self._batch_stall_ns = 2 * spacing * -(-held // DATA_FRAME_LEN)
                 batched = True
         while not (self._stopping or self._reload_requested):
             if pub.pending:
@@ -369,7 +373,7 @@ class Daemon:
                         self._unsent = (item, raw_m, est, t_mono)
                     else:
                         self._on_reply(item)  # type: ignore[arg-type]
-            elif batched and now - self._last_bytes >= 2 * period:
+            elif batched and now - self._last_bytes >= self._batch_stall_ns:
                 self._unbatch()
                 batched = False
             unsent = self._unsent
