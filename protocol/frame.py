@@ -35,6 +35,10 @@ class OutputFormat(IntEnum):
     MM = 0x06
 
 
+_CM = OutputFormat.CM
+"""Looked up once: an enum member read through its class costs ~0.2 us in Python 3.11."""
+
+
 class Frame(NamedTuple):
     """One data frame as the sensor sent it.
 
@@ -67,9 +71,10 @@ class Frame(NamedTuple):
         The sensor reports no distance as dummy 0 (A03+ firmware) or 0xFFFF
         (A01 firmware); both read as None here.
         """
-        if self.dist == 0 or self.dist == DIST_INVALID_A01:
+        dist = self.dist
+        if dist == 0 or dist == DIST_INVALID_A01:
             return None
-        return self.dist / (100.0 if self.fmt is OutputFormat.CM else 1000.0)
+        return dist / 100.0 if self.fmt is _CM else dist / 1000.0
 
 
 def checksum(data: bytes | bytearray | memoryview) -> int:

@@ -81,18 +81,34 @@ class FrameParser:
         """
         stats = self.stats
         buf = self._buf
-        if (
-            not buf
-            and len(data) == DATA_FRAME_LEN
-            and data[:2] == DATA_HEADER
-            and (sum(data[:8]) & 0xFF) == data[8]
-        ):
-            # The usual case, one read = one frame: what the scan below would return.
-            stats.bytes_fed += DATA_FRAME_LEN
-            stats.frames += 1
-            dist, amp, temp = _FIELDS.unpack(data)
-            return [_new(Frame, (dist, amp, temp, t_mono_ns, self.fmt))]
-        stats.bytes_fed += len(data)
+        n = len(data)
+        if not buf and not n % DATA_FRAME_LEN:
+            # The usual cases, a read of whole frames: one at full rate, a batch of them
+            # at ``publish_hz``. What the scan below would return, for less.
+            if n == DATA_FRAME_LEN:
+                if data[:2] == DATA_HEADER and (sum(data[:8]) & 0xFF) == data[8]:
+                    stats.bytes_fed += DATA_FRAME_LEN
+                    stats.frames += 1
+                    dist, amp, temp = _FIELDS.unpack(data)
+                    return [_new(Frame, (dist, amp, temp, t_mono_ns, self.fmt))]
+            else:
+                fmt = self.fmt
+                frames: list[Frame | CommandReply] = []
+                for i in range(0, n, DATA_FRAME_LEN):
+                    j = i + 8
+                    if (
+                        data[i] != DATA_HEADER_BYTE
+                        or data[i + 1] != DATA_HEADER_BYTE
+                        or (sum(data[i:j]) & 0xFF) != data[j]
+                    ):
+                        break
+                    dist, amp, temp = _FIELDS.unpack_from(data, i)
+                    frames.append(_new(Frame, (dist, amp, temp, t_mono_ns, fmt)))
+                else:
+                    stats.bytes_fed += n
+                    stats.frames += len(frames)
+                    return frames
+        stats.bytes_fed += n
         buf += data
         n = len(buf)
         out: list[Frame | CommandReply] = []

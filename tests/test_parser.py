@@ -165,6 +165,34 @@ def test_one_read_per_piece_equals_one_parse(pieces: list[tuple[str, bytes]]) ->
     assert p.stats == whole.stats
 
 
+def _with_checksum(body: bytes) -> bytes:
+    return body + bytes((sum(body) & 0xFF,))
+
+
+nine_bytes = st.one_of(
+    valid_frames,
+    corrupted_frames(),
+    st.binary(min_size=7, max_size=7).map(lambda b: _with_checksum(b"\x59" + b)),  # one 59
+    st.binary(min_size=9, max_size=9),
+    st.binary(min_size=7, max_size=7).map(lambda b: b"\x59\x59" + b),
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.lists(nine_bytes, min_size=2, max_size=6), max_size=12))
+def test_reads_of_whole_frames_equal_one_parse(batches: list[list[bytes]]) -> None:
+    """A read of several whole frames (a batch at ``--publish-hz``) takes the parser's
+    batch short cut; a slot in it that is no good frame (a bad checksum, garbage, a
+    reply cut short) must leave the result to the scan: the same frames and counters
+    as one parse of the whole stream."""
+    p = FrameParser()
+    out = [x for batch in batches for x in p.feed(b"".join(batch), 0)]
+    whole = FrameParser()
+    data = b"".join(b"".join(batch) for batch in batches)
+    assert [_key(x) for x in out] == [_key(x) for x in whole.feed(data, 0)]
+    assert p.stats == whole.stats
+
+
 @settings(max_examples=300, deadline=None)
 @given(st.binary(max_size=600), st.lists(st.integers(0, 10_000), max_size=40))
 def test_arbitrary_bytes_never_raise_and_counters_add_up(data: bytes, cuts: list[int]) -> None:
