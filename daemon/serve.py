@@ -57,7 +57,11 @@ WAITING_PERIODS = 1.5  # ... or this many frame periods, whichever is longer (1 
 VERSION_TIMEOUT_S = 1.0  # a sensor that has not answered the version query by then is warned of
 BACKOFF_FIRST_S = 0.1
 BACKOFF_MAX_S = 2.0
-READ_SLICE_S = 0.25  # longest blocking read; deadlines and wake-ups cut it shorter
+READ_SLICE_S = 5.0
+"""Longest blocking read, seconds: a backstop only. Every timed duty (health, the
+watchdog, reopening, the waiting state, the version query, a stalled batch) is a
+deadline that ends the read sooner, and stop, reload and subscriptions wake it; so a
+silent sensor costs one wake-up per health message, no polling."""
 RETRY_LOG_EVERY_S = 60.0  # while a device stays absent, remind the log this often
 NS = 1_000_000_000
 _CONNECTED = State.CONNECTED
@@ -220,6 +224,10 @@ class Daemon:
             if src.exhausted:
                 log.info("end of %s", src)
                 break
+            if health.state is _CONNECTED:
+                deadlines.append(self._last_bytes + self._waiting_after_ns)
+            if self._version_deadline is not None:
+                deadlines.append(self._version_deadline)
             until = min(now + int(READ_SLICE_S * NS), *deadlines)
             try:
                 if self.cfg.publish.publish_hz:
@@ -350,7 +358,10 @@ class Daemon:
                     continue  # woken for a stop, a reload or a subscription
                 chunk = src.read(0.0)
             elif until_ns > now:
-                chunk = src.read((until_ns - now) / NS)
+                limit = until_ns
+                if batched and self._last_bytes + self._batch_stall_ns < limit:
+                    limit = self._last_bytes + self._batch_stall_ns
+                chunk = src.read((limit - now) / NS if limit > now else 0.0)
             else:
                 break
             now = monotonic_ns()

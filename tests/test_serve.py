@@ -132,6 +132,44 @@ def test_silent_sensor_reported_waiting(running: Any, subscriber: Subscriber, he
     helpers.wait_for(subscriber, helpers.is_range, timeout=3)
 
 
+def _voluntary_switches(pid: int) -> int:
+    """Times the process's main thread blocked (proc(5)): one per wake-up."""
+    for line in Path(f"/proc/{pid}/task/{pid}/status").read_text().splitlines():
+        if line.startswith("voluntary_ctxt_switches:"):
+            return int(line.split()[1])
+    raise AssertionError("no voluntary_ctxt_switches in /proc")
+
+
+@pytest.mark.parametrize("publish_hz", [None, "50"])
+def test_silent_sensor_costs_no_wake_ups(
+    tmp_path: Path,
+    device: Callable[..., PtyDevice],
+    start_daemon: Any,
+    endpoint: str,
+    subscriber: Subscriber,
+    helpers: Any,
+    publish_hz: str | None,
+) -> None:
+    """No polling: with the sensor silent and reported waiting, the loop sleeps until
+    its next duty, here a health message a minute away. A loop that woke every
+    quarter second to look around blocked 8 times in these 2 s."""
+    cfg = tmp_path / "lunad.toml"
+    cfg.write_text("[publish]\nhealth_interval_s = 60\n")
+    dev = device(rate_hz=250, output_enabled=False)
+    args = ["--config", str(cfg), "--device", dev.path, "--publish", endpoint, "--rate", "250"]
+    d = start_daemon(*args, *(["--publish-hz", publish_hz] if publish_hz else []))
+    helpers.wait_for(subscriber, helpers.is_range, timeout=10)
+    dev.pause(3600)
+    helpers.wait_for(subscriber, helpers.health_state("waiting"), timeout=5)
+    time.sleep(0.3)
+    before = _voluntary_switches(d.proc.pid)
+    time.sleep(2.0)
+    woke = _voluntary_switches(d.proc.pid) - before
+    assert woke <= 1, f"the loop woke {woke} times in 2 s with nothing to do"
+    dev.pause(0)
+    helpers.wait_for(subscriber, helpers.is_range, timeout=5)
+
+
 def test_absent_device_then_appears(
     tmp_path: Path, start_daemon: Any, endpoint: str, subscriber: Subscriber, helpers: Any
 ) -> None:

@@ -23,6 +23,7 @@ import shutil
 import signal
 import socket
 import stat
+import struct
 import subprocess
 import sys
 import time
@@ -154,6 +155,8 @@ def test_security_exposure_is_ok() -> None:
 
 # --- the exact ExecStart line ----------------------------------------------------------
 
+SO_TIMESTAMPNS = 35  # Linux asm-generic/socket.h; the socket module does not export it
+
 
 def test_exec_start_notifies_ready_and_pings_the_watchdog(
     device: Callable[..., PtyDevice], tmp_path: Path
@@ -165,6 +168,10 @@ def test_exec_start_notifies_ready_and_pings_the_watchdog(
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
     sock.bind(notify_path)
     sock.settimeout(0.2)
+    # Each message stamped by the kernel as it arrives (wall clock): the gaps are the
+    # daemon's, not those of this process getting round to read them.
+    sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+    timespec = struct.Struct("@ll")
     env |= {"NOTIFY_SOCKET": notify_path, "WATCHDOG_USEC": "400000", "PYTHONUNBUFFERED": "1"}
     log = tmp_path / "daemon.log"
     seen: list[tuple[float, str]] = []
@@ -173,9 +180,15 @@ def test_exec_start_notifies_ready_and_pings_the_watchdog(
         end = time.monotonic() + seconds
         while time.monotonic() < end:
             try:
-                seen.append((time.monotonic(), sock.recv(4096).decode()))
+                data, ancillary, _, _ = sock.recvmsg(4096, socket.CMSG_SPACE(timespec.size))
             except TimeoutError:
-                pass
+                continue
+            sec, nsec = next(
+                timespec.unpack(d[: timespec.size])
+                for level, kind, d in ancillary
+                if (level, kind) == (socket.SOL_SOCKET, SO_TIMESTAMPNS)
+            )
+            seen.append((sec + nsec / 1e9, data.decode()))
 
     with open(log, "wb") as out:
         proc = subprocess.Popen(
