@@ -6,7 +6,8 @@ How this works. Three kinds of figure, each from a function here that
 1. ``bench_bulk``: numpy decode of a recorded stream (``lunad.protocol.bulk``), in
    frames per second, checked frame for frame against the streaming parser.
 2. ``bench_pipeline``: parse + filter + encode of one frame at a time, pure Python,
-   no I/O, in microseconds per frame (and each stage alone).
+   no I/O, in microseconds per frame (and each stage alone); and ``bench_message``, the
+   same for one ``--publish-hz`` message, with warm caches and after a sleep.
 3. ``bench_serve``: ``lunad serve`` as a subprocess against the virtual sensor
    (``PtyDevice`` in this process) at 250 Hz, and the *floor*: the loop in
    ``floor_main`` below, run the same way, alternating with lunad round by round.
@@ -37,6 +38,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 FLOOR_TOPIC = b"range/floor"
+SENSOR_HZ = 250  # the virtual sensor's frame rate in the serve runs, the TF-Luna's maximum
 # set_output_enabled(True) from lunad.protocol.commands: 5A Len=05 ID=07 payload 01, CS.
 # Spelled out so that the floor does not import lunad.protocol (and with it pydantic);
 # tests/test_bench.py checks it against the encoder.
@@ -199,6 +201,14 @@ class PipelineResult:
     total_us: float
     reference_filter_us: float
     """``ReferenceFilter``, the same filter composed from its pieces, on the same frames."""
+    message_frames: int
+    """Frames in one ``--publish-hz`` message (sensor rate / publish rate, rounded up)."""
+    message_warm_us: float
+    """One such message (parse and filter its frames, encode the last), run right after
+    the one before it: caches warm. Median."""
+    message_cold_us: float
+    """The same after sleeping ``MESSAGE_SLEEP_S``, as the low-power loop does between
+    messages: what a wake-up costs in cache misses on this machine. Median."""
 
 
 @dataclass
@@ -320,8 +330,11 @@ def _sensor_frames(n: int, seed: int = 1) -> list[bytes]:
     return out
 
 
-def bench_pipeline(n_frames: int = 50_000) -> PipelineResult:
-    """Parse, filter and encode ``n_frames`` frames fed one at a time (as at 250 Hz)."""
+def bench_pipeline(
+    n_frames: int = 50_000, message_frames: int = 5, messages: int = 200
+) -> PipelineResult:
+    """Parse, filter and encode ``n_frames`` frames fed one at a time (as at 250 Hz);
+    then ``messages`` pairs of ``--publish-hz`` messages (``bench_message``)."""
     import time
 
     from lunad.filters import RangeFilter, ReferenceFilter
@@ -405,9 +418,64 @@ def bench_pipeline(n_frames: int = 50_000) -> PipelineResult:
             seq += 1
     total_s = time.perf_counter() - t0
     us = 1e6 / n_frames
+    warm_us, cold_us = bench_message(message_frames, messages)
     return PipelineResult(
-        n_frames, parse_s * us, filter_s * us, encode_s * us, total_s * us, reference_s * us
+        n_frames,
+        parse_s * us,
+        filter_s * us,
+        encode_s * us,
+        total_s * us,
+        reference_s * us,
+        message_frames,
+        warm_us,
+        cold_us,
     )
+
+
+MESSAGE_SLEEP_S = 0.02  # between two messages at --publish-hz 50
+
+
+def bench_message(frames: int = 5, messages: int = 200) -> tuple[float, float]:
+    """Median microseconds of one ``--publish-hz`` message's pure work: one read of
+    ``frames`` frames parsed, each filtered (spaced 4 ms, as ``Daemon._read_folded``
+    does), the last encoded. Each pair of messages sleeps ``MESSAGE_SLEEP_S`` first:
+    the first of the pair runs cold, the second right after it, warm. The two differ by
+    what caches and branch predictors lost while asleep; on a shared VM, several times
+    the work itself (docs/performance.md, Session 7). Returns (warm, cold)."""
+    import time
+
+    from lunad.filters import RangeFilter
+    from lunad.protocol.frame import Frame
+    from lunad.protocol.messages import encode_range, reasons_json
+    from lunad.protocol.parser import FrameParser
+
+    raw = _sensor_frames(2 * messages * frames, seed=2)
+    reads = [b"".join(raw[i : i + frames]) for i in range(0, len(raw), frames)]
+    parser = FrameParser()
+    filt = RangeFilter()
+    rcache: dict[tuple[str, ...], bytes] = {}
+    spacing = 4_000_000
+    clock = time.perf_counter_ns
+    warm: list[float] = []
+    cold: list[float] = []
+    for i, data in enumerate(reads):
+        t = (i + 1) * frames * spacing
+        if i % 2 == 0:
+            time.sleep(MESSAGE_SLEEP_S)
+        t0 = clock()
+        items = parser.feed(data, t)
+        k = len(items)
+        for fr in items:
+            k -= 1
+            e = filt.step(fr.distance_m, fr.amp, t - k * spacing)  # type: ignore[union-attr]
+        last: Frame = items[-1]  # type: ignore[assignment]
+        reasons = rcache.get(e.reasons)
+        if reasons is None:
+            reasons = rcache[e.reasons] = reasons_json(e.reasons)
+        encode_range(b'"tfluna"', i, t, t, last.distance_m, last.amp, last.temp_c, e.strength,
+                     e.range_m, e.sigma_m, e.lux_est, e.status, reasons, e.zone)  # fmt: skip
+        (cold if i % 2 == 0 else warm).append(clock() - t0)
+    return _median(warm) / 1e3, _median(cold) / 1e3
 
 
 # -- 3. serve end to end -------------------------------------------------------------
@@ -451,7 +519,7 @@ def serve_command(variant: str, device: str, endpoint: str, publish_hz: float | 
         return [sys.executable, "-m", "lunad.daemon.bench", "--device", device,
                 "--publish", endpoint]  # fmt: skip
     cmd = [sys.executable, "-m", "lunad.daemon.cli", "serve", "--device", device,
-           "--publish", endpoint, "--rate", "250", "--name", "bench"]  # fmt: skip
+           "--publish", endpoint, "--rate", str(SENSOR_HZ), "--name", "bench"]  # fmt: skip
     if publish_hz:
         cmd += ["--publish-hz", f"{publish_hz:g}"]
     return cmd
@@ -503,7 +571,7 @@ def run_serve_once(
     assert receiver.stdout is not None
     dev = PtyDevice(
         truth=Truth(2.0, 0.8, 10.0, 100.0),
-        rate_hz=250,
+        rate_hz=SENSOR_HZ,
         link=work / f"{tag}.tty",
         output_enabled=False,
         on_frame_sent=on_sent,

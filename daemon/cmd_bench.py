@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from typing import Any
 
@@ -12,7 +13,10 @@ Measure lunad on this machine and print the figures.
   bulk decode     numpy decode of a recorded stream (frames/s), checked frame for
                   frame against the streaming parser
   pipeline        parse + filter + encode of one frame, pure Python, no I/O (us);
-                  also the filter composed from its pieces (ReferenceFilter)
+                  also the filter composed from its pieces (ReferenceFilter), and one
+                  --publish-hz message (its frames parsed and filtered, the last
+                  encoded) back to back and after 20 ms asleep, as the low-power
+                  loop runs it: what cold caches cost here
   serve           `lunad serve` at 250 Hz against the virtual sensor, and the same
                   with --publish-hz 50: CPU per frame (/proc/<pid>/stat, all
                   threads), latency from the frame's last byte written to a
@@ -94,11 +98,18 @@ def run(args: argparse.Namespace) -> int:
     if duration <= 0 or rounds < 1:
         print("lunad bench: --duration must be > 0 and --rounds >= 1", file=sys.stderr)
         return 2
+    if args.publish_hz <= 0:
+        print("lunad bench: --publish-hz must be > 0", file=sys.stderr)
+        return 2
 
     log.info("bulk decode")
     bulk = bench.bench_bulk(200_000 if quick else 2_000_000, repeats=3 if quick else 5)
     log.info("pipeline")
-    pipe = bench.bench_pipeline(5_000 if quick else 50_000)
+    pipe = bench.bench_pipeline(
+        5_000 if quick else 50_000,
+        message_frames=math.ceil(bench.SENSOR_HZ / args.publish_hz),
+        messages=50 if quick else 200,
+    )
     log.info("serve: %d round(s) of %.0f s windows", rounds, duration)
     serve = bench.bench_serve(
         rounds=rounds,
@@ -173,7 +184,10 @@ def render_table(
     duration: float,
 ) -> str:
     """The figures as a plain-text table (one line per figure)."""
+    from lunad.daemon.bench import MESSAGE_SLEEP_S
+
     hz = f"{low.publish_hz:g}"
+    bench_sleep_ms = MESSAGE_SLEEP_S * 1e3
 
     def ok(key: str) -> str:
         return "met" if met[key] else "MISSED"
@@ -196,6 +210,11 @@ def render_table(
             "  filter composed from its pieces",
             f"{pipe.reference_filter_us:.1f} us",
             f"flat {pipe.filter_us / pipe.reference_filter_us:.2f}x of it",
+        ),
+        (
+            f"  one --publish-hz {hz} message ({pipe.message_frames} frames)",
+            f"{pipe.message_warm_us:.0f} / {pipe.message_cold_us:.0f} us",
+            f"back to back / after {bench_sleep_ms:g} ms asleep",
         ),
         (
             "serve 250 Hz CPU, lunad",

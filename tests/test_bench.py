@@ -37,6 +37,8 @@ def test_quick_json_has_every_figure(capsys: Any) -> None:
     assert doc["bulk"]["same_as_streaming"] is True
     assert doc["bulk"]["bulk_fps"] > 0
     assert doc["pipeline"]["total_us"] > 0 and doc["pipeline"]["reference_filter_us"] > 0
+    assert doc["pipeline"]["message_frames"] == 5  # 250 Hz / --publish-hz 50
+    assert doc["pipeline"]["message_warm_us"] > 0 and doc["pipeline"]["message_cold_us"] > 0
     for key in ("lunad", "floor", "lunad_hz"):
         s = doc["serve"][key]
         for figure in (
@@ -55,7 +57,7 @@ def test_quick_json_has_every_figure(capsys: Any) -> None:
 
 def test_table_renders_every_line() -> None:
     b = bench.BulkResult(10, 90, 3e6, 2e5, True)
-    p = bench.PipelineResult(10, 1.0, 2.0, 3.0, 6.0, 2.5)
+    p = bench.PipelineResult(10, 1.0, 2.0, 3.0, 6.0, 2.5, 5, 40.0, 160.0)
 
     def summary(variant: str, hz: float | None, p99_us: float = 600.0) -> bench.ServeSummary:
         return bench.ServeSummary(variant, hz, 1, 100.0, 2.5, 300.0, p99_us, 0.0, 50.0, 0.5)
@@ -87,6 +89,8 @@ def test_table_renders_every_line() -> None:
         "RSS",
         "start-up",
         "--publish-hz 50",
+        "message (5 frames)",
+        "40 / 160 us",
     ):
         assert word in text
     assert "MISSED" not in text
@@ -124,3 +128,22 @@ def test_cpu_split_gives_the_process_under_test_a_cpu_of_its_own() -> None:
     assert split is not None
     ours, theirs = split
     assert theirs == {max(cpus)} and ours | theirs == cpus and not ours & theirs
+
+
+@pytest.mark.parametrize(
+    ("argv", "complaint"),
+    [
+        (["--duration", "0"], "--duration must be > 0"),
+        (["--rounds", "0"], "--rounds >= 1"),
+        (["--publish-hz", "0"], "--publish-hz must be > 0"),
+    ],
+)
+def test_bad_settings_exit_2_before_measuring(argv: list[str], complaint: str) -> None:
+    out = subprocess.run(
+        [sys.executable, "-m", "lunad.daemon.cli", "bench", *argv],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert out.returncode == 2 and complaint in out.stderr
+    assert "bulk decode" not in out.stderr + out.stdout  # nothing ran
