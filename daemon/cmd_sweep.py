@@ -12,16 +12,11 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from lunad.sim.paper_model import CALIBRATED_DEFAULT, PAPER_METRES, Profile
-from lunad.sim.sweep import (
-    DEFAULT_SEED,
-    PAPER_GRID,
-    RowResult,
-    format_json,
-    format_table,
-    run_sweep,
-)
+if TYPE_CHECKING:  # numpy behind them: imported when the command runs, not for every `lunad`
+    from lunad.sim.paper_model import Profile
+    from lunad.sim.sweep import RowResult
 
 EPILOG = """examples:
   lunad sweep                        both profiles, Table I side by side
@@ -80,8 +75,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--seed",
         type=int,
-        default=DEFAULT_SEED,
-        help=f"seed of the random generator (default: {DEFAULT_SEED})",
+        help="seed of the random generator (default: a fixed one, so that runs repeat)",
     )
     p.add_argument(
         "--fit",
@@ -98,6 +92,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _profiles(choice: str) -> list[Profile]:
+    from lunad.sim.paper_model import CALIBRATED_DEFAULT, PAPER_METRES
+
     profiles: dict[str, list[Profile]] = {
         "paper": [PAPER_METRES],
         "calibrated": [CALIBRATED_DEFAULT],
@@ -108,6 +104,7 @@ def _profiles(choice: str) -> list[Profile]:
 
 def _run_fit() -> int:
     from lunad.sim.fit import fit, format_profile
+    from lunad.sim.sweep import format_table
 
     result = fit()
     print(
@@ -129,10 +126,13 @@ def run(args: argparse.Namespace) -> int:
     """Run the sweep (or the fit); returns the process exit code."""
     if args.fit:
         return _run_fit()
+    from lunad.sim.sweep import DEFAULT_SEED, PAPER_GRID, format_json, format_table, run_sweep
+
+    seed = DEFAULT_SEED if args.seed is None else args.seed
     profiles = _profiles(args.profile)
     results: list[RowResult] = []
     for profile in profiles:
-        results += run_sweep(profile, PAPER_GRID, args.readings, args.seed)
+        results += run_sweep(profile, PAPER_GRID, args.readings, seed)
     if args.fmt == "json":
         if len(profiles) == 1:
             objs = [r.to_json() for r in results]
@@ -149,7 +149,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             from lunad.sim.sweep import write_plots
 
-            paths = write_plots(profiles, args.plot, args.readings, args.seed)
+            paths = write_plots(profiles, args.plot, args.readings, seed)
         except ModuleNotFoundError as exc:
             if exc.name != "matplotlib" and not str(exc.name).startswith("matplotlib"):
                 raise

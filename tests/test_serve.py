@@ -132,6 +132,15 @@ def test_silent_sensor_reported_waiting(running: Any, subscriber: Subscriber, he
     helpers.wait_for(subscriber, helpers.is_range, timeout=3)
 
 
+def test_serve_loads_no_numpy(running: Any) -> None:
+    """numpy is for recordings and the paper sweep. In `lunad serve` it cost 0.1 s of
+    start-up here (x7 on a Pi), 11 MiB of RSS and an OpenBLAS thread per core; it came in
+    with the argument parser of `lunad sweep`."""
+    _, d = running(rate_hz=100)
+    maps = Path(f"/proc/{d.proc.pid}/maps").read_text()
+    assert "numpy" not in maps and "openblas" not in maps
+
+
 def _voluntary_switches(pid: int) -> int:
     """Times the process's main thread blocked (proc(5)): one per wake-up."""
     for line in Path(f"/proc/{pid}/task/{pid}/status").read_text().splitlines():
