@@ -32,6 +32,7 @@ The harness imports numpy, the simulator and pyzmq inside its functions, so
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 from dataclasses import dataclass, field
@@ -203,11 +204,13 @@ class PipelineResult:
     """``ReferenceFilter``, the same filter composed from its pieces, on the same frames."""
     message_frames: int
     """Frames in one ``--publish-hz`` message (sensor rate / publish rate, rounded up)."""
+    message_gap_s: float
+    """The time between two such messages (1 / publish rate), seconds."""
     message_warm_us: float
     """One such message (parse and filter its frames, encode the last), run right after
     the one before it: caches warm. Median."""
     message_cold_us: float
-    """The same after sleeping ``MESSAGE_SLEEP_S``, as the low-power loop does between
+    """The same after sleeping ``message_gap_s``, as the low-power loop does between
     messages: what a wake-up costs in cache misses on this machine. Median."""
 
 
@@ -331,7 +334,7 @@ def _sensor_frames(n: int, seed: int = 1) -> list[bytes]:
 
 
 def bench_pipeline(
-    n_frames: int = 50_000, message_frames: int = 5, messages: int = 200
+    n_frames: int = 50_000, publish_hz: float = 50.0, messages: int = 200
 ) -> PipelineResult:
     """Parse, filter and encode ``n_frames`` frames fed one at a time (as at 250 Hz);
     then ``messages`` pairs of ``--publish-hz`` messages (``bench_message``)."""
@@ -418,7 +421,8 @@ def bench_pipeline(
             seq += 1
     total_s = time.perf_counter() - t0
     us = 1e6 / n_frames
-    warm_us, cold_us = bench_message(message_frames, messages)
+    per_message = math.ceil(SENSOR_HZ / publish_hz)
+    warm_us, cold_us = bench_message(per_message, 1.0 / publish_hz, messages)
     return PipelineResult(
         n_frames,
         parse_s * us,
@@ -426,22 +430,21 @@ def bench_pipeline(
         encode_s * us,
         total_s * us,
         reference_s * us,
-        message_frames,
+        per_message,
+        1.0 / publish_hz,
         warm_us,
         cold_us,
     )
 
 
-MESSAGE_SLEEP_S = 0.02  # between two messages at --publish-hz 50
-
-
-def bench_message(frames: int = 5, messages: int = 200) -> tuple[float, float]:
+def bench_message(frames: int = 5, gap_s: float = 0.02, messages: int = 200) -> tuple[float, float]:
     """Median microseconds of one ``--publish-hz`` message's pure work: one read of
-    ``frames`` frames parsed, each filtered (spaced 4 ms, as ``Daemon._read_folded``
-    does), the last encoded. Each pair of messages sleeps ``MESSAGE_SLEEP_S`` first:
-    the first of the pair runs cold, the second right after it, warm. The two differ by
-    what caches and branch predictors lost while asleep; on a shared VM, several times
-    the work itself (docs/performance.md, Session 7). Returns (warm, cold)."""
+    ``frames`` frames parsed, each filtered (spaced a sensor frame apart, as
+    ``Daemon._read_folded`` does), the last encoded. Each pair of messages sleeps
+    ``gap_s`` first: the first of the pair runs cold, the second right after it, warm.
+    The two differ by what caches and branch predictors lost while asleep; on a shared
+    VM, several times the work itself (docs/performance.md, Session 7).
+    Returns (warm, cold)."""
     import time
 
     from lunad.filters import RangeFilter
@@ -454,14 +457,14 @@ def bench_message(frames: int = 5, messages: int = 200) -> tuple[float, float]:
     parser = FrameParser()
     filt = RangeFilter()
     rcache: dict[tuple[str, ...], bytes] = {}
-    spacing = 4_000_000
+    spacing = 1_000_000_000 // SENSOR_HZ
     clock = time.perf_counter_ns
     warm: list[float] = []
     cold: list[float] = []
     for i, data in enumerate(reads):
         t = (i + 1) * frames * spacing
         if i % 2 == 0:
-            time.sleep(MESSAGE_SLEEP_S)
+            time.sleep(gap_s)
         t0 = clock()
         items = parser.feed(data, t)
         k = len(items)

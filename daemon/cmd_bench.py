@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from typing import Any
 
@@ -15,8 +14,8 @@ Measure lunad on this machine and print the figures.
   pipeline        parse + filter + encode of one frame, pure Python, no I/O (us);
                   also the filter composed from its pieces (ReferenceFilter), and one
                   --publish-hz message (its frames parsed and filtered, the last
-                  encoded) back to back and after 20 ms asleep, as the low-power
-                  loop runs it: what cold caches cost here
+                  encoded) back to back and after a publish period asleep, as the
+                  low-power loop runs it: what cold caches cost here
   serve           `lunad serve` at 250 Hz against the virtual sensor, and the same
                   with --publish-hz 50: CPU per frame (/proc/<pid>/stat, all
                   threads), latency from the frame's last byte written to a
@@ -106,9 +105,7 @@ def run(args: argparse.Namespace) -> int:
     bulk = bench.bench_bulk(200_000 if quick else 2_000_000, repeats=3 if quick else 5)
     log.info("pipeline")
     pipe = bench.bench_pipeline(
-        5_000 if quick else 50_000,
-        message_frames=math.ceil(bench.SENSOR_HZ / args.publish_hz),
-        messages=50 if quick else 200,
+        5_000 if quick else 50_000, publish_hz=args.publish_hz, messages=50 if quick else 200
     )
     log.info("serve: %d round(s) of %.0f s windows", rounds, duration)
     serve = bench.bench_serve(
@@ -184,10 +181,7 @@ def render_table(
     duration: float,
 ) -> str:
     """The figures as a plain-text table (one line per figure)."""
-    from lunad.daemon.bench import MESSAGE_SLEEP_S
-
     hz = f"{low.publish_hz:g}"
-    bench_sleep_ms = MESSAGE_SLEEP_S * 1e3
 
     def ok(key: str) -> str:
         return "met" if met[key] else "MISSED"
@@ -214,7 +208,7 @@ def render_table(
         (
             f"  one --publish-hz {hz} message ({pipe.message_frames} frames)",
             f"{pipe.message_warm_us:.0f} / {pipe.message_cold_us:.0f} us",
-            f"back to back / after {bench_sleep_ms:g} ms asleep",
+            f"back to back / after {pipe.message_gap_s * 1e3:g} ms asleep",
         ),
         (
             "serve 250 Hz CPU, lunad",

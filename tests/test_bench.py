@@ -57,7 +57,7 @@ def test_quick_json_has_every_figure(capsys: Any) -> None:
 
 def test_table_renders_every_line() -> None:
     b = bench.BulkResult(10, 90, 3e6, 2e5, True)
-    p = bench.PipelineResult(10, 1.0, 2.0, 3.0, 6.0, 2.5, 5, 40.0, 160.0)
+    p = bench.PipelineResult(10, 1.0, 2.0, 3.0, 6.0, 2.5, 5, 0.02, 40.0, 160.0)
 
     def summary(variant: str, hz: float | None, p99_us: float = 600.0) -> bench.ServeSummary:
         return bench.ServeSummary(variant, hz, 1, 100.0, 2.5, 300.0, p99_us, 0.0, 50.0, 0.5)
@@ -91,6 +91,7 @@ def test_table_renders_every_line() -> None:
         "--publish-hz 50",
         "message (5 frames)",
         "40 / 160 us",
+        "after 20 ms asleep",
     ):
         assert word in text
     assert "MISSED" not in text
