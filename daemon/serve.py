@@ -287,15 +287,15 @@ class Daemon:
                     continue  # woken for a subscription, not a timeout
                 break
             got = True
-            data, t_mono = chunk
-            self._last_bytes = t_mono
+            data, t_read = chunk
+            t_mono = self._last_bytes = monotonic_ns()  # a replay's chunks keep recorded times
             if self.recorder is not None:
                 self.recorder(chunk)
-            t_unix = t_mono + self._unix_offset_ns
-            for item in feed(data, t_mono):
+            t_unix = t_read + self._unix_offset_ns
+            for item in feed(data, t_read):
                 if type(item) is Frame:
                     raw_m = item.distance_m
-                    send(item, raw_m, step(item, raw_m, t_mono), t_mono, t_unix)
+                    send(item, raw_m, step(item, raw_m, t_read), t_read, t_unix)
                 else:
                     self._on_reply(item)  # type: ignore[arg-type]
             if health.state is not _CONNECTED or self._version_deadline is not None:
@@ -371,7 +371,7 @@ class Daemon:
             if chunk is not None:
                 got = True
                 data, t_mono = chunk
-                self._last_bytes = t_mono
+                self._last_bytes = now  # not t_mono: a replay's chunks keep recorded times
                 if self.recorder is not None:
                     self.recorder(chunk)
                 items = feed(data, t_mono)
@@ -450,11 +450,9 @@ class Daemon:
     def _after_read(self, got: bool) -> None:
         now = time.monotonic_ns()
         health = self.health
-        if got:
-            self._last_bytes = now
-            if health.state is not State.CONNECTED:
-                log.info("data arriving from %s", self._source_desc())
-                self._set_state(State.CONNECTED, now)
+        if got and health.state is not State.CONNECTED:
+            log.info("data arriving from %s", self._source_desc())
+            self._set_state(State.CONNECTED, now)
         elif health.state is State.CONNECTED and now - self._last_bytes > self._waiting_after_ns:
             log.warning(
                 "no data from %s for %.1f s", self._source_desc(), self._waiting_after_ns / NS

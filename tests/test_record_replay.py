@@ -137,3 +137,30 @@ def test_simulated_i2c_bus_through_the_daemon(
     assert all(30 < m.temp_c < 50 for m in msgs)  # 0.01 degC registers, converted
     assert h.firmware == "3.0.9" and h.checksum_errors == 0
     assert "opened i2c bus sim address 0x10" in d.log
+
+
+def test_replay_keeps_sending_health(start_daemon: Any, endpoint: str, tmp_path: Path) -> None:
+    """A replay's chunks keep their recorded times, which mean nothing on this machine's
+    clock. The loop once timed its deadlines by them, and a replay at 1x sent health every
+    2 s or so instead of every second."""
+    from lunad.daemon.record import Recorder
+    from lunad.daemon.source import Chunk
+    from lunad.protocol.frame import encode_frame
+    from lunad.protocol.messages import HealthMessage
+
+    rec = tmp_path / "slow.lunarec"
+    with Recorder(rec, source_desc="test") as r:
+        five = b"".join(encode_frame(200, 1500, 2368) for _ in range(5))
+        for k in range(200):  # 4 s of a 250 Hz sensor, five frames a chunk, recorded at t ~ 0
+            r(Chunk(five, (k + 1) * 20_000_000))
+    start_daemon("--replay", str(rec), "--publish", endpoint)
+    while_playing = []
+    with Subscriber(endpoint) as sub:
+        deadline = time.monotonic() + 15.0
+        while len(while_playing) < 3 and time.monotonic() < deadline:
+            msg = sub.recv(timeout_s=1.0)
+            if isinstance(msg, HealthMessage) and msg.state == "connected":
+                if msg.frames >= 1000:
+                    break  # the replay's end
+                while_playing.append(msg.frames)
+    assert len(while_playing) >= 3, f"health while the 4 s replay played: {while_playing} frames"
