@@ -20,6 +20,10 @@ from lunad.protocol.messages import HealthMessage, Message, RangeMessage
 from lunad.sim.pty_device import PtyDevice
 
 LUNAD = [sys.executable, "-m", "lunad.daemon.cli"]
+STARTUP_S = 30.0
+"""How long a test waits for a new daemon's first reading. About 1 s here, but a loaded
+CI machine has taken over 10 s (two tests failed so in one `make test`); waiting longer
+only slows a failure down."""
 
 
 def _open_ptys() -> set[str]:
@@ -171,5 +175,6 @@ def helpers() -> Any:
         health_state = staticmethod(health_state)
         ranges_through = staticmethod(ranges_through)
         lunad = LUNAD
+        startup_s = STARTUP_S
 
     return H

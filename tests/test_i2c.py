@@ -273,11 +273,16 @@ def test_nack_on_the_block_read_retries_the_whole_sample(
     fake: FakeSMBus, opener: Callable[..., I2CSource]
 ):
     src = opener()
-    assert src.read(0.0) is None  # does the trigger write, the read is due after the settle
-    assert fake.triggers == 1
+    deadline = time.monotonic() + 5.0
+    while True:  # until a read stops between the trigger and its block read
+        triggers = fake.triggers
+        if src.read(0.0) is None and fake.triggers == triggers + 1:
+            break  # the block read waits for the settle (a stall past it finishes the sample)
+        assert time.monotonic() < deadline, "no read stopped after a trigger"
+        time.sleep(0.001)
     fake.nack(1)
     assert len(data_frames(collect(src, FrameParser(), frames=1))) == 1
-    assert src.nacks == 1 and fake.triggers == 2
+    assert src.nacks == 1 and fake.triggers == triggers + 2
 
 
 def test_persistent_nack_is_source_lost_after_backoff(

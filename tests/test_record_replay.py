@@ -58,7 +58,7 @@ def test_replay_publishes_what_the_live_run_did(
         "r",
     )
     with Subscriber(endpoint) as sub:
-        first = helpers.wait_for(sub, helpers.is_range, timeout=10)
+        first = helpers.wait_for(sub, helpers.is_range, timeout=helpers.startup_s)
         time.sleep(1.5)
         dev.pause(3600)
         time.sleep(0.1)  # a frame the device was writing when paused
@@ -123,7 +123,7 @@ def test_simulated_i2c_bus_through_the_daemon(
 ) -> None:
     d = start_daemon("--bus", "sim", "--publish", endpoint, "--rate", "100", "--name", "i2c")
     with Subscriber(endpoint) as sub:
-        helpers.wait_for(sub, helpers.is_range, timeout=10)
+        helpers.wait_for(sub, helpers.is_range, timeout=helpers.startup_s)
         msgs: list[RangeMessage] = []
         t_end = time.monotonic() + 10.0
         while len(msgs) < 50 and time.monotonic() < t_end:

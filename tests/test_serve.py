@@ -47,7 +47,7 @@ def running(
             "--rate",
             str(dev_kw.get("rate_hz", 100)),
         )
-        helpers.wait_for(subscriber, helpers.is_range, timeout=10)
+        helpers.wait_for(subscriber, helpers.is_range, timeout=helpers.startup_s)
         return dev, d
 
     return start
@@ -179,7 +179,7 @@ def test_silent_sensor_costs_no_wake_ups(
     dev = device(rate_hz=250, output_enabled=False)
     args = ["--config", str(cfg), "--device", dev.path, "--publish", endpoint, "--rate", "250"]
     d = start_daemon(*args, *(["--publish-hz", publish_hz] if publish_hz else []))
-    helpers.wait_for(subscriber, helpers.is_range, timeout=10)
+    helpers.wait_for(subscriber, helpers.is_range, timeout=helpers.startup_s)
     dev.pause(3600)
     helpers.wait_for(subscriber, helpers.health_state("waiting"), timeout=5)
     time.sleep(0.3)

@@ -55,7 +55,7 @@ def test_late_subscriber_gets_cached_values_at_once(
     cfg.write_text("[publish]\nhealth_interval_s = 60\n")
     start_daemon("--config", str(cfg), "--device", dev.path, "--publish", endpoint, "--name", "lv")
     with Subscriber(endpoint) as first:
-        last = helpers.wait_for(first, helpers.is_range, timeout=10).seq
+        last = helpers.wait_for(first, helpers.is_range, timeout=helpers.startup_s).seq
         dev.pause(3600)
         while not helpers.health_state("waiting")(m := first.recv(timeout_s=10.0)):
             assert m is not None, "no waiting state after the sensor went silent"
@@ -74,7 +74,7 @@ def test_publish_hz_folds_frames(
     dev = device(rate_hz=250, output_enabled=False)
     start_daemon("--device", dev.path, "--publish", endpoint, "--rate", "250", "--publish-hz", "50")
     with Subscriber(endpoint) as sub:
-        helpers.wait_for(sub, helpers.is_range, timeout=10)
+        helpers.wait_for(sub, helpers.is_range, timeout=helpers.startup_s)
         t0 = time.monotonic()
         seqs = []
         while time.monotonic() - t0 < 2.0:
@@ -192,7 +192,7 @@ def test_sighup_reload_good_and_bad(
     )
     d = start_daemon("--config", str(cfg))
     with Subscriber(endpoint) as sub:
-        m = helpers.wait_for(sub, helpers.is_range, timeout=10)
+        m = helpers.wait_for(sub, helpers.is_range, timeout=helpers.startup_s)
         assert m.sensor == "one"
         cfg.write_text(cfg.read_text().replace('"one"', '"two"'))
         d.proc.send_signal(signal.SIGHUP)
