@@ -123,6 +123,7 @@ def run(args: argparse.Namespace) -> int:
         "p99": ratio(lunad.lat_p99_us, floor.lat_p99_us),
         "hz_cpu": ratio(low.cpu_us_per_frame, floor.cpu_us_per_frame),
     }
+    per_round = {"cpu": round_ratios(lunad, floor), "hz_cpu": round_ratios(low, floor)}
 
     def within(key: str, limit: float) -> bool:
         r = ratios[key]
@@ -147,13 +148,14 @@ def run(args: argparse.Namespace) -> int:
             "pipeline": dataclasses.asdict(pipe),
             "serve": {k: dataclasses.asdict(v) for k, v in serve.items()},
             "ratios": ratios,
+            "round_ratios": per_round,
             "targets": TARGETS,
             "met": met,
             "settings": {"quick": quick, "duration_s": duration, "rounds": rounds},
         }
         print(json.dumps(doc, indent=2))
     else:
-        print(render_table(bulk, pipe, lunad, floor, low, ratios, met, rounds, duration))
+        print(render_table(bulk, pipe, lunad, floor, low, ratios, per_round, met, rounds, duration))
     for r in failed_runs:
         log.error("%s run exited %s:\n%s", r.variant, r.exit_code, r.log_tail)
     return 1 if failed_runs else 0
@@ -163,6 +165,16 @@ def ratio(a: float, b: float) -> float | None:
     """``a / b``, or None when the floor measured nothing (0 CPU ticks in a short
     window on a loaded machine): no ratio rather than a crash or an infinity."""
     return a / b if b > 0 else None
+
+
+def round_ratios(a: Any, b: Any) -> list[float | None]:
+    """CPU per frame of ``a`` over ``b``'s, round by round (``ServeSummary.runs``).
+
+    The rounds alternate, so each pair ran a minute apart at most: their spread shows
+    how far the host moved during the bench, which the ratio of medians hides.
+    """
+    pairs = zip(a.runs, b.runs, strict=True)
+    return [ratio(x.cpu_us_per_frame, y.cpu_us_per_frame) for x, y in pairs]
 
 
 def _x(r: float | None) -> str:
@@ -176,6 +188,7 @@ def render_table(
     floor: Any,
     low: Any,
     ratios: dict[str, float | None],
+    per_round: dict[str, list[float | None]],
     met: dict[str, bool],
     rounds: int,
     duration: float,
@@ -185,6 +198,13 @@ def render_table(
 
     def ok(key: str) -> str:
         return "met" if met[key] else "MISSED"
+
+    def spread(key: str) -> list[tuple[str, str, str]]:
+        rs = per_round[key]
+        if len(rs) < 2:
+            return []
+        each = " ".join(f"{r:.2f}" if r is not None else "n/a" for r in rs)
+        return [("    round by round", each, "the spread is the host's")]
 
     rows: list[tuple[str, str, str]] = [
         (
@@ -221,6 +241,7 @@ def render_table(
             f"{floor.cpu_pct:.1f} % of a core",
         ),
         ("  lunad / floor CPU", _x(ratios["cpu"]), f"<= 1.25x: {ok('cpu_ratio')}"),
+        *spread("cpu"),
         ("latency p50, lunad / floor", f"{lunad.lat_p50_us:.0f} / {floor.lat_p50_us:.0f} us", ""),
         (
             "latency p99, lunad / floor",
@@ -252,6 +273,7 @@ def render_table(
             _x(ratios["hz_cpu"]),
             f"<= 0.4x: {ok('hz_cpu_ratio')}",
         ),
+        *spread("hz_cpu"),
         (
             f"  --publish-hz {hz} latency p50 / p99",
             f"{low.lat_p50_us:.0f} / {low.lat_p99_us:.0f} us",

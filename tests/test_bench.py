@@ -52,6 +52,7 @@ def test_quick_json_has_every_figure(capsys: Any) -> None:
             assert s[figure] == s[figure], f"{key}.{figure} is NaN"  # NaN != NaN
         assert all(r["received"] > 0 and r["exit_code"] == 0 for r in s["runs"])
     assert set(doc["ratios"]) == {"cpu", "p99", "hz_cpu"}
+    assert {k: len(v) for k, v in doc["round_ratios"].items()} == {"cpu": 1, "hz_cpu": 1}
     assert set(doc["met"]) >= {"bulk_fps", "cpu_ratio", "p99", "idle_cpu", "rss", "startup"}
 
 
@@ -62,7 +63,7 @@ def test_table_renders_every_line() -> None:
     def summary(variant: str, hz: float | None, p99_us: float = 600.0) -> bench.ServeSummary:
         return bench.ServeSummary(variant, hz, 1, 100.0, 2.5, 300.0, p99_us, 0.0, 50.0, 0.5)
 
-    def render(floor_p99_us: float) -> str:
+    def render(floor_p99_us: float, per_round: dict[str, list[float | None]] | None = None) -> str:
         return cmd_bench.render_table(
             b,
             p,
@@ -70,6 +71,7 @@ def test_table_renders_every_line() -> None:
             summary("floor", None, floor_p99_us),
             summary("lunad", 50.0),
             {"cpu": 1.0, "p99": 1.0, "hz_cpu": 1.0},
+            per_round or {"cpu": [1.0], "hz_cpu": [1.0]},
             dict.fromkeys(
                 ("bulk_fps", "cpu_ratio", "p99", "idle_cpu", "rss", "hz_cpu_ratio", "startup"),
                 True,
@@ -96,6 +98,10 @@ def test_table_renders_every_line() -> None:
         assert word in text
     assert "MISSED" not in text
     assert "busy" not in text
+    assert "round by round" not in text  # one round: nothing to spread
+    rounds = render(600.0, {"cpu": [1.1, 0.9, 1.0], "hz_cpu": [0.38, None, 0.52]})
+    assert rounds.count("round by round") == 2
+    assert "1.10 0.90 1.00" in rounds and "0.38 n/a 0.52" in rounds
     busy = render(21_800.0)  # a loaded host: the floor itself misses 1 ms
     assert "floor's own p99 latency is 21.8 ms, so this host is busy" in busy
 
@@ -116,6 +122,14 @@ def test_no_ratio_when_the_floor_measured_nothing() -> None:
     assert cmd_bench.ratio(3.0, 1.5) == 2.0
     assert cmd_bench.ratio(3.0, 0.0) is None
     assert cmd_bench._x(None).startswith("n/a")
+
+
+def test_round_ratios_pair_the_rounds_in_order() -> None:
+    def runs(*cpu: float) -> Any:
+        return argparse.Namespace(runs=[argparse.Namespace(cpu_us_per_frame=c) for c in cpu])
+
+    assert cmd_bench.round_ratios(runs(60.0, 90.0), runs(120.0, 150.0)) == [0.5, 0.6]
+    assert cmd_bench.round_ratios(runs(60.0), runs(0.0)) == [None]
 
 
 def test_cpu_split_gives_the_process_under_test_a_cpu_of_its_own() -> None:
