@@ -264,12 +264,21 @@ class Daemon:
         and sends. It returns to the housekeeping loop at the deadline, on a read
         timeout or wake-up, on a stop/reload request, or a state change to report. New
         subscriptions are answered in here, between reads. True when any bytes came.
+
+        A read of several frames (a backlog after this process stalled, a USB
+        adapter's packet) gives the filter their times as the sensor sent them, a
+        frame period apart and ending at the read, as ``_read_folded`` does; their
+        messages keep the read time. Stamped alike, the first frame of a 0.2 s
+        backlog came 0.2 s after the last one before it and the rest at ``dt = 0``:
+        the filter then took the stall's prediction error for noise, and its lux
+        estimate jumped to some 200 klux (docs/filter.md, "Gaps and stalls").
         """
         got = False
         read = src.read
         feed = self.parser.feed
         step = self._step
         send = self._send_range
+        spacing = self._frame_period_ns
         pub = self.pub
         health = self.health
         assert pub is not None
@@ -292,10 +301,13 @@ class Daemon:
             if self.recorder is not None:
                 self.recorder(chunk)
             t_unix = t_read + self._unix_offset_ns
-            for item in feed(data, t_read):
+            items = feed(data, t_read)
+            k = len(items)
+            for item in items:
+                k -= 1
                 if type(item) is Frame:
                     raw_m = item.distance_m
-                    send(item, raw_m, step(item, raw_m, t_read), t_read, t_unix)
+                    send(item, raw_m, step(item, raw_m, t_read - k * spacing), t_read, t_unix)
                 else:
                     self._on_reply(item)  # type: ignore[arg-type]
             if health.state is not _CONNECTED or self._version_deadline is not None:

@@ -21,7 +21,7 @@ from math import sqrt
 
 from lunad.filters.config import AMP_AMBIENT, AMP_SATURATED, FilterConfig
 from lunad.filters.estimate import Estimate, Reason, Status, Zone
-from lunad.filters.lux import LuxConstants
+from lunad.filters.lux import PRED_SKIP_RATIO, LuxConstants
 from lunad.filters.policy import first_amp_at_least
 from lunad.filters.zone import ZoneClassifier
 
@@ -238,7 +238,7 @@ class RangeFilter:
                 e = z - x
                 # Lux estimate (lux.py: LuxEstimator.update).
                 if sigma_known <= 0.0:
-                    if dt > 0.0:
+                    if dt > 0.0 and p00 <= PRED_SKIP_RATIO * r:
                         s2 = s * s
                         e2 = e * e
                         lim = self._clip2 * (p00 + c2 / s2 + q)
