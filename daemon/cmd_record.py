@@ -85,7 +85,11 @@ def run(args: argparse.Namespace) -> int:
     deadline = None if args.duration is None else time.monotonic() + args.duration
     backoff = 0.1
     try:
-        rec = Recorder(args.out, source_desc=f"{cfg.source.kind} {cfg.source.device}")
+        rec = Recorder(
+            args.out,
+            source_desc=f"{cfg.source.kind} {cfg.source.device}",
+            frame_rate_hz=cfg.sensor.frame_rate_hz,
+        )
     except (LunadError, OSError, ValueError) as exc:
         print(f"lunad record: --out: {exc}", file=sys.stderr)
         return EX_CONFIG

@@ -34,9 +34,11 @@ from lunad.daemon.source import Chunk
 log = logging.getLogger(__name__)
 
 MAGIC = b"LUNAREC\n"  # '\n' catches a text-mode (CRLF) transfer, as PNG's signature does
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+READS_VERSIONS = (1, 2)
 FILE_SUFFIX = ".lunarec"
 _HEADER = struct.Struct("<8sHHqqH")  # magic, version, flags, unix ns, mono ns, desc length
+_RATE = struct.Struct("<H")  # version 2: the sensor's frame rate, Hz (0: not known)
 _CRC = struct.Struct("<I")
 _RECORD = struct.Struct("<QII")  # t_mono_ns, length, crc32
 _RECORD_CRC_SPAN = 12  # bytes of _RECORD the CRC covers: t_mono_ns and length
@@ -77,6 +79,9 @@ class RecordingHeader:
     created_unix_ns: int
     created_mono_ns: int
     source_desc: str
+    frame_rate_hz: int = 0
+    """The rate the sensor was set to send at, Hz; 0 when not known (version 1, or a
+    recording of something else). A replay spaces a read's frames by it."""
 
 
 def _encode_header(header: RecordingHeader) -> bytes:
@@ -84,7 +89,7 @@ def _encode_header(header: RecordingHeader) -> bytes:
     body = _HEADER.pack(
         MAGIC, header.version, 0, header.created_unix_ns, header.created_mono_ns, len(desc)
     )
-    body += desc
+    body += _RATE.pack(header.frame_rate_hz) + desc
     return body + _CRC.pack(zlib.crc32(body))
 
 
@@ -103,18 +108,22 @@ def _read_header(f: _ReadableFile, path: Path) -> RecordingHeader:
     if len(fixed) < _HEADER.size:
         raise _TornHeaderError(f"{path}: header cut short ({len(fixed)} bytes), no records")
     _magic, version, _flags, unix_ns, mono_ns, desc_len = _HEADER.unpack(fixed)
-    if version != FORMAT_VERSION:
+    if version not in READS_VERSIONS:
         raise RecordFormatError(
-            f"{path}: recording format version {version}; this lunad reads {FORMAT_VERSION}"
+            f"{path}: recording format version {version}; this lunad reads "
+            + " and ".join(map(str, READS_VERSIONS))
         )
-    rest = f.read(desc_len + _CRC.size) or b""
-    if len(rest) < desc_len + _CRC.size:
+    extra = _RATE.size if version >= 2 else 0
+    rest = f.read(extra + desc_len + _CRC.size) or b""
+    if len(rest) < extra + desc_len + _CRC.size:
         raise _TornHeaderError(f"{path}: header cut short, no records")
-    desc = rest[:desc_len]
-    (crc,) = _CRC.unpack(rest[desc_len:])
-    if zlib.crc32(fixed + desc) != crc:
+    body = rest[: extra + desc_len]
+    (crc,) = _CRC.unpack(rest[extra + desc_len :])
+    if zlib.crc32(fixed + body) != crc:
         raise RecordFormatError(f"{path}: header checksum mismatch (corrupt file)")
-    return RecordingHeader(version, unix_ns, mono_ns, desc.decode(errors="replace"))
+    rate = _RATE.unpack(body[:extra])[0] if extra else 0
+    desc = body[extra:].decode(errors="replace")
+    return RecordingHeader(version, unix_ns, mono_ns, desc, rate)
 
 
 @dataclass(slots=True)
@@ -171,20 +180,23 @@ def _fsync_dir(path: Path) -> None:
 class Recorder:
     """Appends chunks to a recording: ``with Recorder(path) as rec: rec(chunk)``.
 
-    File format, version 1 (all integers little-endian; CRC-32 as ``zlib.crc32``):
+    File format, version 2 (all integers little-endian; CRC-32 as ``zlib.crc32``).
+    Version 1, which ``Replay`` still reads, has no frame rate: its description starts
+    at offset 30.
 
     ======  =============  ===============================================================
     offset  type           field
     ======  =============  ===============================================================
     **file header**, once
     0       8 bytes        magic ``b"LUNAREC\\n"``
-    8       u16            format version, 1
+    8       u16            format version, 2
     10      u16            flags, 0 (reserved)
     12      i64            ``created_unix_ns``: wall clock when the file was created
     20      i64            ``created_mono_ns``: ``time.monotonic_ns()`` at the same moment
     28      u16            ``n``: length of the source description
-    30      n bytes        source description, UTF-8 (e.g. ``serial /dev/ttyAMA0 115200 Bd``)
-    30+n    u32            CRC-32 of the 30+n bytes before it
+    30      u16            ``frame_rate_hz``: the rate the sensor was set to, 0 if unknown
+    32      n bytes        source description, UTF-8 (e.g. ``serial /dev/ttyAMA0 115200 Bd``)
+    32+n    u32            CRC-32 of the 32+n bytes before it
     **record**, repeated to the end of the file
     +0      u64            ``t_mono_ns``: ``time.monotonic_ns()`` when the bytes were read
     +8      u32            ``length``: number of data bytes, at most 1 MiB
@@ -194,7 +206,8 @@ class Recorder:
 
     The file is append-only. Opening an existing recording checks its header, truncates
     a torn last record (left by a power cut; logged) and appends after the last good
-    one; the header keeps the first session's description and creation time. Records
+    one; the header keeps the first session's description, creation time and frame
+    rate. Records
     appended after a reboot restart the monotonic clock, so ``t_mono_ns`` may step back;
     ``paced`` treats that as no gap.
 
@@ -209,6 +222,9 @@ class Recorder:
     Args:
         path: the recording; created if missing, appended to if it exists.
         source_desc: one line naming the source, stored in a new file's header.
+        frame_rate_hz: the rate the sensor was set to send at, Hz (0: unknown), stored
+            in a new file's header: a read of several frames replays with them that
+            far apart (``Daemon._read_each``), whatever ``--rate`` the replay is given.
         fsync_interval_s: seconds between fsyncs; 0 syncs every record.
 
     Raises:
@@ -222,11 +238,15 @@ class Recorder:
         path: str | os.PathLike[str],
         source_desc: str = "",
         *,
+        frame_rate_hz: int = 0,
         fsync_interval_s: float = FSYNC_INTERVAL_S,
     ) -> None:
         self.path = Path(path)
         if len(source_desc.encode()) > MAX_DESC_BYTES:
             raise ValueError(f"source_desc longer than {MAX_DESC_BYTES} bytes in UTF-8")
+        if not 0 <= frame_rate_hz <= 0xFFFF:
+            raise ValueError(f"frame_rate_hz must fit a u16, got {frame_rate_hz}")
+        self._frame_rate_hz = frame_rate_hz
         self.fsync_interval_s = fsync_interval_s
         self.records = 0
         """Records written by this Recorder (not counting earlier sessions)."""
@@ -249,7 +269,9 @@ class Recorder:
         self._last_sync = time.monotonic()
 
     def _write_header(self, f: io.FileIO, source_desc: str) -> None:
-        header = RecordingHeader(FORMAT_VERSION, time.time_ns(), time.monotonic_ns(), source_desc)
+        header = RecordingHeader(
+            FORMAT_VERSION, time.time_ns(), time.monotonic_ns(), source_desc, self._frame_rate_hz
+        )
         f.write(_encode_header(header))
         os.fsync(f.fileno())
         _fsync_dir(self.path)

@@ -75,6 +75,11 @@ class ReplaySource(Source):
         return cls(cfg.path, cfg.speed)
 
     @property
+    def frame_rate_hz(self) -> int | None:
+        """The rate the recording's header gives (format 2), else None."""
+        return self._replay.header.frame_rate_hz or None
+
+    @property
     def exhausted(self) -> bool:
         """True once the last chunk has been returned; ``read`` then returns None at once."""
         return self._next is None

@@ -115,16 +115,20 @@ class Daemon:
         if cfg.filter != self.cfg.filter:
             self.filter = RangeFilter(cfg.filter.to_filter_config())
         self.cfg = cfg
-        self._frame_period_ns = int(NS / cfg.sensor.frame_rate_hz)
-        self._publish_period_ns = int(NS / (cfg.publish.publish_hz or cfg.sensor.frame_rate_hz))
-        self._unbatch()
-        self._waiting_after_ns = int(
-            max(WAITING_AFTER_S, WAITING_PERIODS / cfg.sensor.frame_rate_hz) * NS
-        )
+        src = self._source
+        self._set_frame_rate((src and src.frame_rate_hz) or cfg.sensor.frame_rate_hz)
         self._sensor_json = json.dumps(cfg.sensor.name).encode()
         self._range_topic = topic("range", cfg.sensor.name)
         self._health_topic = topic("health", cfg.sensor.name)
         logging.getLogger("lunad").setLevel(cfg.log_level.upper())
+
+    def _set_frame_rate(self, rate_hz: int) -> None:
+        """Time the loop for a sensor sending ``rate_hz`` frames a second."""
+        cfg = self.cfg
+        self._frame_period_ns = int(NS / rate_hz)
+        self._publish_period_ns = int(NS / (cfg.publish.publish_hz or rate_hz))
+        self._unbatch()
+        self._waiting_after_ns = int(max(WAITING_AFTER_S, WAITING_PERIODS / rate_hz) * NS)
 
     # -- signals ------------------------------------------------------------
 
@@ -177,7 +181,11 @@ class Daemon:
         next_wd = now
         ready_sent = False
         if self.cfg.source.record:
-            self.recorder = Recorder(self.cfg.source.record, source_desc=self._source_desc())
+            self.recorder = Recorder(
+                self.cfg.source.record,
+                source_desc=self._source_desc(),
+                frame_rate_hz=self.cfg.sensor.frame_rate_hz,
+            )
             log.info("recording every byte read to %s", self.cfg.source.record)
         replay_waiting_logged = False
         log.info(
@@ -535,6 +543,15 @@ class Daemon:
             return
         failures = self._open_failures
         log.info("opened %s%s", self._source, f" after {failures} failed tries" if failures else "")
+        rate = self._source.frame_rate_hz
+        if rate and rate != self.cfg.sensor.frame_rate_hz:
+            log.info(
+                "%s: its sensor sent %d frames a second; timing frames by that, not by --rate %d",
+                self._source,
+                rate,
+                self.cfg.sensor.frame_rate_hz,
+            )
+            self._set_frame_rate(rate)
         self._open_failures = 0
         self._recovered_seen = 0
         self._backoff = BACKOFF_FIRST_S

@@ -54,6 +54,13 @@ class Source(ABC):
         return False
 
     @property
+    def frame_rate_hz(self) -> int | None:
+        """The rate the frames were sent at, Hz, when the source knows it better than
+        the configuration does (a recording says what the live run's sensor was set
+        to); None: the configured rate."""
+        return None
+
+    @property
     def recovered_faults(self) -> tuple[int, str | None]:
         """Faults this source recovered from by itself, and the last one.
 

@@ -21,6 +21,10 @@ for Gaussian noise. The same clip bounds how fast c_hat can grow when it is far 
 small (x1.1 per frame in c at 250 Hz), so a sudden sun still converges in a few
 dozen frames. Departure from the paper: it treats L as known; here it is inferred.
 
+Gaps: after frames went missing, P_pred dominates V, the sample scatters with it, and
+the gap's length would give it a large weight (``dt / tau``, up to 0.5). Such a
+residual is not learnt from (``PRED_SKIP_RATIO``).
+
 A sensor whose constants differ from the configured sigma0 and k (``noise_scale``)
 is absorbed: the filter only ever uses c_hat, which is measured. L_hat is then biased:
 with constants scaled by f, L_hat = (f - 1) sigma0 / k + f L. Internally c_hat may
@@ -40,7 +44,8 @@ PRED_SKIP_RATIO = 2.0
 own variance (c^2 / S^2 + q) is not learnt from (our choice). Its sample of c^2 then
 scatters over 9 times as much as one from a well-known position, (P + m)^2 against
 m^2, yet after a gap in the frames ``dt / tau`` would give it up to half the weight:
-one unlucky residual after a 0.1 s gap put L_hat above 20 klux in a 100 lux room.
+one residual after a gap could put L_hat above 20 klux in a 100 lux room, or pull c^2
+to its floor so that the filter took the readings' noise for motion.
 A steady stream gets there only on a track's first frames (26 and 39 of 173108 frames
 of the built-in scenarios, noise x2 and x0.5, seeds 0-4), and ``lunad eval`` prints
 the same figures with and without the skip (docs/filter.md, "Gaps and stalls")."""

@@ -55,15 +55,16 @@ def read_all(path: Path) -> tuple[list[Chunk], int]:
 def test_round_trip_and_header(tmp_path: Path) -> None:
     path = tmp_path / "a.lunarec"
     before_ns = time.time_ns()
-    with Recorder(path, "serial /dev/ttyAMA0 115200 Bd") as rec:
+    with Recorder(path, "serial /dev/ttyAMA0 115200 Bd", frame_rate_hz=250) as rec:
         for chunk in CHUNKS:
             rec(chunk)
         assert rec.records == 3
         assert rec.bytes == 4 + 0 + 256
     assert path.read_bytes().startswith(MAGIC)
     with Replay(path) as rep:
-        assert rep.header.version == 1
+        assert rep.header.version == 2
         assert rep.header.source_desc == "serial /dev/ttyAMA0 115200 Bd"
+        assert rep.header.frame_rate_hz == 250
         assert before_ns <= rep.header.created_unix_ns <= time.time_ns()
         assert list(rep) == CHUNKS
         assert rep.records == 3
@@ -170,12 +171,53 @@ def test_newer_version_and_corrupt_header(tmp_path: Path) -> None:
     path = tmp_path / "v.lunarec"
     record(path, CHUNKS)
     good = path.read_bytes()
-    path.write_bytes(good[:8] + struct.pack("<H", 2) + good[10:])
-    with pytest.raises(RecordFormatError, match="version 2"):
+    path.write_bytes(good[:8] + struct.pack("<H", 3) + good[10:])
+    with pytest.raises(RecordFormatError, match="version 3; this lunad reads 1 and 2"):
         Replay(path)
-    path.write_bytes(good[:30] + b"T" + good[31:])  # first description byte
+    path.write_bytes(good[:32] + b"T" + good[33:])  # first description byte
     with pytest.raises(RecordFormatError, match="checksum"):
         Replay(path)
+    path.write_bytes(good[:30] + b"\xfa" + good[31:])  # the frame rate
+    with pytest.raises(RecordFormatError, match="checksum"):
+        Replay(path)
+
+
+def test_version_1_files_still_replay_and_take_appends(tmp_path: Path) -> None:
+    """Session 8 added the frame rate (format 2); a recording made before still reads,
+    with no rate (a replay then spaces frames by ``--rate``), and appending keeps it 1."""
+    import zlib
+
+    v2 = tmp_path / "v2.lunarec"
+    record(v2, CHUNKS[:2], "old")
+    records = v2.read_bytes()[32 + len("old") + 4 :]
+    body = struct.pack("<8sHHqqH", MAGIC, 1, 0, 5, 6, 3) + b"old"
+    v1 = tmp_path / "v1.lunarec"
+    v1.write_bytes(body + struct.pack("<I", zlib.crc32(body)) + records)
+    with Replay(v1) as rep:
+        assert (rep.header.version, rep.header.frame_rate_hz) == (1, 0)
+        assert (rep.header.created_unix_ns, rep.header.source_desc) == (5, "old")
+        assert list(rep) == CHUNKS[:2]
+    with Recorder(v1, "new", frame_rate_hz=250) as rec:
+        rec(CHUNKS[2])
+    with Replay(v1) as rep:
+        assert (rep.header.version, rep.header.frame_rate_hz, rep.header.source_desc) == (
+            1,
+            0,
+            "old",
+        )
+        assert list(rep) == CHUNKS
+    src = ReplaySource(v1, speed=None)
+    try:
+        assert src.frame_rate_hz is None
+    finally:
+        src.close()
+    with Recorder(tmp_path / "r.lunarec", frame_rate_hz=100):
+        pass
+    src = ReplaySource(tmp_path / "r.lunarec", speed=None)
+    try:
+        assert src.frame_rate_hz == 100
+    finally:
+        src.close()
 
 
 def test_recorder_refuses_to_append_to_a_foreign_file(tmp_path: Path) -> None:
