@@ -206,10 +206,9 @@ class Recorder:
 
     The file is append-only. Opening an existing recording checks its header, truncates
     a torn last record (left by a power cut; logged) and appends after the last good
-    one; the header keeps the first session's description, creation time and frame
-    rate. Records
-    appended after a reboot restart the monotonic clock, so ``t_mono_ns`` may step back;
-    ``paced`` treats that as no gap.
+    one; the header keeps the first session's version, description, creation time and
+    frame rate. Records appended after a reboot restart the monotonic clock, so
+    ``t_mono_ns`` may step back; ``paced`` treats that as no gap.
 
     Durability: each record is one unbuffered ``write``, so a crash of the process loses
     nothing already passed to the recorder. ``fsync`` runs at most once per

@@ -276,10 +276,11 @@ class Daemon:
         A read of several frames (a backlog after this process stalled, a USB
         adapter's packet) gives the filter their times as the sensor sent them, a
         frame period apart and ending at the read, as ``_read_folded`` does; their
-        messages keep the read time. Stamped alike, the first frame of a 0.2 s
-        backlog came 0.2 s after the last one before it and the rest at ``dt = 0``:
-        the filter then took the stall's prediction error for noise, and its lux
-        estimate jumped to some 200 klux (docs/filter.md, "Gaps and stalls").
+        messages keep the read time. Stamped alike, the first frame of a 0.1 s
+        backlog came 0.1 s after the last one before it and the rest at ``dt = 0``:
+        the filter took the stall's prediction error for noise, and after 4 % of
+        such stalls its lux estimate went above 20 klux (docs/filter.md, "Gaps and
+        stalls").
         """
         got = False
         read = src.read
