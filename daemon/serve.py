@@ -125,6 +125,7 @@ class Daemon:
     def _set_frame_rate(self, rate_hz: int) -> None:
         """Time the loop for a sensor sending ``rate_hz`` frames a second."""
         cfg = self.cfg
+        self._rate_hz = rate_hz
         self._frame_period_ns = int(NS / rate_hz)
         self._publish_period_ns = int(NS / (cfg.publish.publish_hz or rate_hz))
         self._unbatch()
@@ -575,7 +576,7 @@ class Daemon:
             self.health.firmware = str(value)
             log.info("sensor firmware %s", value)
         elif reply.cmd_id == CommandId.SAMPLE_FREQ:
-            wanted = self.cfg.sensor.frame_rate_hz
+            wanted = self._rate_hz  # a replay's: the rate its recording was made at
             if value != wanted:
                 log.warning("sensor reports frame rate %s Hz, asked for %d Hz", value, wanted)
             else:

@@ -77,6 +77,10 @@ def test_replay_publishes_what_the_live_run_did(
         replayed = helpers.ranges_through(sub, live_msgs[-1].seq)
         assert replay.proc.wait(timeout=15) == 0  # the end of the recording ends the daemon
     assert [m.seq for m in replayed] == list(range(len(replayed)))  # replay waited for us
+    # no --rate given: the recording's 250 Hz times the frames, and the sensor's
+    # recorded answer to the live run's rate command is no surprise
+    assert "its sensor sent 250 frames a second" in replay.log
+    assert "asked for" not in replay.log and "frame rate 250 Hz" in replay.log
     assert comparable(replayed[s0:]) == comparable(live_msgs)
     assert any(m.status != "ok" for m in replayed)  # a run with dropouts and filtering in it
 
