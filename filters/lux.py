@@ -21,9 +21,13 @@ for Gaussian noise. The same clip bounds how fast c_hat can grow when it is far 
 small (x1.1 per frame in c at 250 Hz), so a sudden sun still converges in a few
 dozen frames. Departure from the paper: it treats L as known; here it is inferred.
 
-Gaps: after frames went missing, P_pred dominates V, the sample scatters with it, and
-the gap's length would give it a large weight (``dt / tau``, up to 0.5). Such a
-residual is not learnt from (``PRED_SKIP_RATIO``).
+Gaps: after frames went missing, the gap's length would give the next sample a large
+weight (``dt / tau``, up to 0.5), though one sample says no more after a gap than
+before it: a sample of a variance scatters by 140 %, so with half the weight c^2
+moved by 70 % (one standard deviation) at once. A sample weighs at most
+``WEIGHT_GROWTH_MAX`` times the one before it. And when P_pred dominates V the
+sample scatters with it too: such a residual is not learnt from at all
+(``PRED_SKIP_RATIO``).
 
 A sensor whose constants differ from the configured sigma0 and k (``noise_scale``)
 is absorbed: the filter only ever uses c_hat, which is measured. L_hat is then biased:
@@ -39,16 +43,21 @@ from dataclasses import dataclass
 from lunad.filters.config import FilterConfig
 
 C2_FLOOR_FRACTION = 0.01  # c_hat never below sigma0 / 10: keeps R positive and learnable
+WEIGHT_GROWTH_MAX = 2.0
+"""A sample's averaging time (``dt``) is at most this many times the previous one's
+(our choice): after a 0.1 s gap at 250 Hz the next sample weighs 0.08, not 0.5, and a
+change of frame rate is followed within a few frames."""
 PRED_SKIP_RATIO = 2.0
 """A residual whose predicted position variance exceeds this many times the reading's
 own variance (c^2 / S^2 + q) is not learnt from (our choice). Its sample of c^2 then
 scatters over 9 times as much as one from a well-known position, (P + m)^2 against
-m^2, yet after a gap in the frames ``dt / tau`` would give it up to half the weight:
-one residual after a gap could put L_hat above 20 klux in a 100 lux room, or pull c^2
-to its floor so that the filter took the readings' noise for motion.
-A steady stream gets there only on a track's first frames (26 and 39 of 173108 frames
-of the built-in scenarios, noise x2 and x0.5, seeds 0-4), and ``lunad eval`` prints
-the same figures with and without the skip (docs/filter.md, "Gaps and stalls")."""
+m^2: clipped at 2.5 sigma of V, one such sample with P = 10 m could still move c^2
+5.7-fold at the capped weight of 0.08. It happens after gaps; with the weight uncapped,
+one residual after a gap put L_hat above 20 klux in a 100 lux room, or pulled c^2 to
+its floor so that the filter took the readings' noise for motion. A steady stream
+gets there only on a track's first frames (26 and 39 of 173108 frames of the
+built-in scenarios, noise x2 and x0.5, seeds 0-4), and ``lunad eval`` prints the same
+figures with and without the skip (docs/filter.md, "Gaps and stalls")."""
 
 
 def lux_of(c2: float, sigma0_m: float, k_m_per_lux: float) -> float:
@@ -116,6 +125,7 @@ class LuxEstimator:
         "_c2_floor",
         "_c2_init",
         "_clip2",
+        "_dt_last",
         "_inv_kappa",
         "_k",
         "_lux_init",
@@ -145,6 +155,8 @@ class LuxEstimator:
         """Back to the configured initial light level."""
         self.c2 = self.c2_zone = self._c2_init
         self.lux = self.lux_zone = self._lux_init
+        self._dt_last = math.inf
+        """The averaging time of the last sample learnt from, seconds."""
 
     @property
     def c_m(self) -> float:
@@ -159,7 +171,8 @@ class LuxEstimator:
             p_pred_m2: predicted variance of the state's position, m^2.
             s: strength S of the reading.
             q_m2: variance of the quantisation, m^2.
-            dt_s: time since the previous frame, seconds (sets the averaging weight).
+            dt_s: time since the previous frame, seconds (sets the averaging weight,
+                up to ``WEIGHT_GROWTH_MAX`` times the previous sample's).
 
         Skipped when ``dt_s`` is not positive (no time to average over) and when the
         prediction is too uncertain to tell noise from its own error
@@ -177,6 +190,10 @@ class LuxEstimator:
         if e2 > lim:
             e2 = lim
         sample = (e2 * self._inv_kappa - p_pred_m2 - q_m2) * s2
+        dt_max = WEIGHT_GROWTH_MAX * self._dt_last
+        if dt_s > dt_max:
+            dt_s = dt_max
+        self._dt_last = dt_s
         a = dt_s / self._tau_s
         c2 += (a if a < 0.5 else 0.5) * (sample - c2)
         if c2 < self._c2_floor:

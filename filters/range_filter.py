@@ -21,7 +21,7 @@ from math import sqrt
 
 from lunad.filters.config import AMP_AMBIENT, AMP_SATURATED, FilterConfig
 from lunad.filters.estimate import Estimate, Reason, Status, Zone
-from lunad.filters.lux import PRED_SKIP_RATIO, LuxConstants
+from lunad.filters.lux import PRED_SKIP_RATIO, WEIGHT_GROWTH_MAX, LuxConstants
 from lunad.filters.policy import first_amp_at_least
 from lunad.filters.zone import ZoneClassifier
 
@@ -67,6 +67,7 @@ class RangeFilter:
         "_k",
         "_last_accept_ns",
         "_last_t_ns",
+        "_lux_dt",
         "_lux_enter",
         "_lux_exit",
         "_lux_init",
@@ -153,6 +154,7 @@ class RangeFilter:
         self._run_sign = False
         self.c2 = self.c2_zone = self._c2_init
         self.lux = self.lux_zone = self._lux_init
+        self._lux_dt = float("inf")
         self.zones.reset()
         self._last_t_ns: int | None = None
         self._last_accept_ns = 0
@@ -246,7 +248,11 @@ class RangeFilter:
                             e2 = lim
                         sample = (e2 * self._inv_kappa - p00 - q) * s2
                         c2_floor = self._c2_floor
-                        a = dt / self._tau_s
+                        w = WEIGHT_GROWTH_MAX * self._lux_dt
+                        if dt < w:
+                            w = dt
+                        self._lux_dt = w
+                        a = w / self._tau_s
                         c2 += (a if a < 0.5 else 0.5) * (sample - c2)
                         if c2 < c2_floor:
                             c2 = c2_floor
@@ -254,7 +260,7 @@ class RangeFilter:
                         lux = (sqrt(c2) - self._sigma0) / self._k
                         self.lux = lux if lux > 0.0 else 0.0
                         c2 = self.c2_zone
-                        a = dt / self._tau_zone_s
+                        a = w / self._tau_zone_s
                         c2 += (a if a < 0.5 else 0.5) * (sample - c2)
                         if c2 < c2_floor:
                             c2 = c2_floor
