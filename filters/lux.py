@@ -51,8 +51,8 @@ PRED_SKIP_RATIO = 2.0
 """A residual whose predicted position variance exceeds this many times the reading's
 own variance (c^2 / S^2 + q) is not learnt from (our choice). Its sample of c^2 then
 scatters over 9 times as much as one from a well-known position, (P + m)^2 against
-m^2: clipped at 2.5 sigma of V, one such sample with P = 10 m could still move c^2
-5.7-fold at the capped weight of 0.08. It happens after gaps; with the weight uncapped,
+m^2: clipped at 2.5 sigma of V, one such sample with P ten times m could still move
+c^2 5.7-fold at the capped weight of 0.08. It happens after gaps; with the weight uncapped,
 one residual after a gap put L_hat above 20 klux in a 100 lux room, or pulled c^2 to
 its floor so that the filter took the readings' noise for motion. A steady stream
 gets there only on a track's first frames (26 and 39 of 173108 frames of the

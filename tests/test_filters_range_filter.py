@@ -121,7 +121,8 @@ def test_a_gap_in_the_frames_does_not_read_as_sunlight(
     retries), 100 lux. The first residual after a gap mostly measures the prediction's
     own error. Learnt from with the gap's weight (dt / tau, capped at 0.5), an unlucky
     one put L_hat above the 20 klux of ``high_ambient``: after 3 of these 145 gaps
-    (29.8 klux at worst) before ``PRED_SKIP_RATIO``; 7.7 klux at worst since."""
+    (29.8 klux at worst) before ``PRED_SKIP_RATIO`` and ``WEIGHT_GROWTH_MAX``; 7.7 klux
+    at worst since (with the skip alone, too)."""
     amp, lux = 1576, 100.0  # S = 0.79, the daemon tests' target
     worst = 0.0
     for seed in range(5):

@@ -183,7 +183,7 @@ def test_newer_version_and_corrupt_header(tmp_path: Path) -> None:
 
 
 def test_version_1_files_still_replay_and_take_appends(tmp_path: Path) -> None:
-    """Session 8 added the frame rate (format 2); a recording made before still reads,
+    """Format 2 added the frame rate; a recording made in format 1 still reads,
     with no rate (a replay then spaces frames by ``--rate``), and appending keeps it 1."""
     import zlib
 
