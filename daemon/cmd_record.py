@@ -17,8 +17,9 @@ log = logging.getLogger("lunad.record")
 DESCRIPTION = """\
 Record everything a sensor sends, byte for byte, with the time each chunk was read.
 The file format is versioned and append-only; a power cut costs at most the last
-second, and a torn last record is skipped on replay. Replay it through the very
-parser and filter the daemon uses with `lunad serve --replay FILE`.
+second, and a torn last record is skipped on replay. It keeps the frame rate the
+sensor was set to (--rate), by which a replay spaces the frames of one read. Replay it
+through the very parser and filter the daemon uses with `lunad serve --replay FILE`.
 
 Recording while the daemon runs: use `lunad serve --record FILE` instead (a port
 opens exclusively, so the two cannot share it).
