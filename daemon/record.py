@@ -80,8 +80,10 @@ class RecordingHeader:
     created_mono_ns: int
     source_desc: str
     frame_rate_hz: int = 0
-    """The rate the sensor was set to send at, Hz; 0 when not known (version 1, or a
-    recording of something else). A replay spaces a read's frames by it."""
+    """The frame rate the recording run was configured for (``--rate``), Hz: the rate it
+    set the sensor to, and timed frames by even with ``--no-configure``; 0 when not
+    known (version 1, or a recording of something else). A replay spaces a read's
+    frames by it, as the live run did."""
 
 
 def _encode_header(header: RecordingHeader) -> bytes:
