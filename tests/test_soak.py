@@ -314,7 +314,9 @@ def test_soak_60s_passes(capsys: Any, tmp_path: Path) -> None:
     for f in doc["faults"]:
         assert f["ok"] and f["recovery_s"] is not None and f["recovery_s"] <= 5.0, f
     acc = doc["accounting"]
-    assert acc["lost"] == 0 and acc["published"] == acc["reference_frames"] > 4000
+    # 100 Hz for 60 s less the faults' silences: 4915 in a run here, but the virtual sensor is
+    # a thread of this process, and a loaded CI-like run (10 min) made only 3706
+    assert acc["lost"] == 0 and acc["published"] == acc["reference_frames"] > 2000
     assert acc["frames_sent"] - acc["eaten_frames"] + acc["false_frames"] == acc["published"]
     assert doc["daemon_exit_code"] == 0 and doc["daemon_died_at_s"] is None
     assert doc["fds"]["end"] <= doc["fds"]["baseline"]
