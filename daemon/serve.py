@@ -115,12 +115,16 @@ class Daemon:
         if cfg.filter != self.cfg.filter:
             self.filter = RangeFilter(cfg.filter.to_filter_config())
         self.cfg = cfg
-        src = self._source
-        self._set_frame_rate((src and src.frame_rate_hz) or cfg.sensor.frame_rate_hz)
+        self._set_frame_rate(self._sensor_rate_hz())
         self._sensor_json = json.dumps(cfg.sensor.name).encode()
         self._range_topic = topic("range", cfg.sensor.name)
         self._health_topic = topic("health", cfg.sensor.name)
         logging.getLogger("lunad").setLevel(cfg.log_level.upper())
+
+    def _sensor_rate_hz(self) -> int:
+        """The rate frames come at, Hz: a replay's recorded one, else the configured one."""
+        src = self._source
+        return (src.frame_rate_hz if src is not None else None) or self.cfg.sensor.frame_rate_hz
 
     def _set_frame_rate(self, rate_hz: int) -> None:
         """Time the loop for a sensor sending ``rate_hz`` frames a second."""
@@ -545,8 +549,8 @@ class Daemon:
             return
         failures = self._open_failures
         log.info("opened %s%s", self._source, f" after {failures} failed tries" if failures else "")
-        rate = self._source.frame_rate_hz
-        if rate and rate != self.cfg.sensor.frame_rate_hz:
+        rate = self._sensor_rate_hz()
+        if rate != self._rate_hz:
             log.info(
                 "%s: its sensor sent %d frames a second; timing frames by that, not by --rate %d",
                 self._source,
