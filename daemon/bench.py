@@ -15,9 +15,10 @@ How this works. Three kinds of figure, each from a function here that
    threads; the kernel keeps that total exact and reports it in clock ticks) over a
    steady window after a warm-up, divided by the frames the sensor wrote in it;
    latency from the frame's last byte written (the device's ``on_frame_sent`` hook)
-   to the bench's SUB socket receiving the message with that ``seq``; idle CPU over
-   a window with the sensor paused; peak RSS (``VmHWM``); and start-up, from spawn to
-   the first message received.
+   to the bench's SUB socket receiving the message with that ``seq``; idle CPU and
+   wake-ups over a window with the sensor paused (``_task_totals``: nanoseconds, where
+   the clock ticks above are 10 ms coarse); peak RSS (``VmHWM``); and start-up, from
+   spawn to the first message received.
 
 The floor is what any Python program must spend to do the job at all: blocking
 ``os.read`` on the tty, a checksum per frame and a small JSON message per frame on a
@@ -227,6 +228,9 @@ class ServeRun:
     lat_p50_us: float
     lat_p99_us: float
     idle_cpu_pct: float
+    idle_wakeups_per_s: float
+    """Voluntary context switches a second, all threads, with the sensor silent: how
+    often the process woke (NaN where the kernel has no schedstat)."""
     rss_mib: float
     startup_s: float
     exit_code: int | None
@@ -245,6 +249,7 @@ class ServeSummary:
     lat_p50_us: float
     lat_p99_us: float
     idle_cpu_pct: float
+    idle_wakeups_per_s: float
     rss_mib: float
     startup_s: float
     runs: list[ServeRun] = field(default_factory=list)
@@ -492,6 +497,34 @@ def _cpu_ticks(pid: int) -> int:
     return int(rest[11]) + int(rest[12])  # fields 14 and 15 of proc(5)
 
 
+def _task_totals(pid: int) -> tuple[int, int] | None:
+    """(nanoseconds on a CPU, voluntary context switches), summed over the threads of
+    ``pid`` (``/proc/<pid>/task/*/schedstat`` and ``status``); None where the kernel
+    has no schedstat (``CONFIG_SCHED_INFO``).
+
+    For the idle window: a silent lunad wakes once a second for its health message,
+    about 0.4 ms each, and ``/proc/<pid>/stat`` counts in 10 ms ticks, so a 3 s window
+    read 0 or 1 tick (0.00 or 0.33 %) by where the ticks fell. A thread that ends
+    while this reads it is left out.
+    """
+    if not os.path.exists("/proc/self/schedstat"):
+        return None
+    ns = switches = 0
+    task = f"/proc/{pid}/task"
+    for tid in os.listdir(task):
+        try:
+            with open(f"{task}/{tid}/schedstat", "rb") as f:
+                ns += int(f.read().split()[0])
+            with open(f"{task}/{tid}/status", "rb") as f:
+                for line in f:
+                    if line.startswith(b"voluntary_ctxt_switches:"):
+                        switches += int(line.split()[1])
+                        break
+        except FileNotFoundError:
+            continue
+    return ns, switches
+
+
 def _vm_hwm_mib(pid: int) -> float:
     with open(f"/proc/{pid}/status") as f:
         for line in f:
@@ -609,9 +642,9 @@ def run_serve_once(
             frames = n1 - n0
             dev.pause(3600.0)
             time.sleep(idle_settle_s)
-            i0, it0 = _cpu_ticks(proc.pid), time.monotonic_ns()
+            i0, ic0, it0 = _task_totals(proc.pid), _cpu_ticks(proc.pid), time.monotonic_ns()
             time.sleep(idle_s)
-            i1, it1 = _cpu_ticks(proc.pid), time.monotonic_ns()
+            i1, ic1, it1 = _task_totals(proc.pid), _cpu_ticks(proc.pid), time.monotonic_ns()
             rss = _vm_hwm_mib(proc.pid)
             proc.send_signal(signal.SIGTERM)
             code = proc.wait(5.0)
@@ -628,6 +661,16 @@ def run_serve_once(
         receiver.stdout.close()
         dev.close()
         os.sched_setaffinity(0, old_affinity)
+    idle_window_s = (it1 - it0) / 1e9
+    if i0 is not None and i1 is not None:
+        idle_cpu_s, idle_wakeups = (i1[0] - i0[0]) / 1e9, float(i1[1] - i0[1])
+    else:
+        idle_cpu_s, idle_wakeups = (ic1 - ic0) / hz, float("nan")
+    idle_window_s = (it1 - it0) / 1e9
+    if i0 is not None and i1 is not None:
+        idle_cpu_s, idle_wakeups = (i1[0] - i0[0]) / 1e9, float(i1[1] - i0[1])
+    else:
+        idle_cpu_s, idle_wakeups = (ic1 - ic0) / hz, float("nan")
     records = array.array("q")
     with open(out_path, "rb") as f:
         records.frombytes(f.read())
@@ -652,7 +695,8 @@ def run_serve_once(
         cpu_pct=100.0 * cpu_s / ((t1 - t0) / 1e9),
         lat_p50_us=_percentile(lat, 0.50) / 1e3,
         lat_p99_us=_percentile(lat, 0.99) / 1e3,
-        idle_cpu_pct=100.0 * (i1 - i0) / hz / ((it1 - it0) / 1e9),
+        idle_cpu_pct=100.0 * idle_cpu_s / idle_window_s,
+        idle_wakeups_per_s=idle_wakeups / idle_window_s,
         rss_mib=rss,
         startup_s=startup_s,
         exit_code=code,
@@ -688,6 +732,7 @@ def summarise(runs: list[ServeRun]) -> ServeSummary:
         lat_p50_us=_median([r.lat_p50_us for r in runs]),
         lat_p99_us=_median([r.lat_p99_us for r in runs]),
         idle_cpu_pct=_median([r.idle_cpu_pct for r in runs]),
+        idle_wakeups_per_s=_median([r.idle_wakeups_per_s for r in runs]),
         rss_mib=_median([r.rss_mib for r in runs]),
         startup_s=_median([r.startup_s for r in runs]),
         runs=runs,

@@ -46,6 +46,7 @@ def test_quick_json_has_every_figure(capsys: Any) -> None:
             "lat_p50_us",
             "lat_p99_us",
             "idle_cpu_pct",
+            "idle_wakeups_per_s",
             "rss_mib",
             "startup_s",
         ):
@@ -61,7 +62,7 @@ def test_table_renders_every_line() -> None:
     p = bench.PipelineResult(10, 1.0, 2.0, 3.0, 6.0, 2.5, 5, 0.02, 40.0, 160.0)
 
     def summary(variant: str, hz: float | None, p99_us: float = 600.0) -> bench.ServeSummary:
-        return bench.ServeSummary(variant, hz, 1, 100.0, 2.5, 300.0, p99_us, 0.0, 50.0, 0.5)
+        return bench.ServeSummary(variant, hz, 1, 100.0, 2.5, 300.0, p99_us, 0.04, 1.0, 50.0, 0.5)
 
     def render(floor_p99_us: float, per_round: dict[str, list[float | None]] | None = None) -> str:
         return cmd_bench.render_table(
@@ -94,6 +95,10 @@ def test_table_renders_every_line() -> None:
         "message (5 frames)",
         "40 / 160 us",
         "after 20 ms asleep",
+        "0.040 / 0.040 %",
+        "wake-ups a second, lunad / floor",
+        "1.0 / 1.0",
+        "at most 2: for the health message",
     ):
         assert word in text
     assert "MISSED" not in text
@@ -122,6 +127,52 @@ def test_no_ratio_when_the_floor_measured_nothing() -> None:
     assert cmd_bench.ratio(3.0, 1.5) == 2.0
     assert cmd_bench.ratio(3.0, 0.0) is None
     assert cmd_bench._x(None).startswith("n/a")
+
+
+def test_task_totals_count_every_threads_cpu_and_sleeps() -> None:
+    """``_task_totals`` on this process: a thread's 30 sleeps and its busy loop show up."""
+    import threading
+    import time
+
+    before = bench._task_totals(os.getpid())
+    if before is None:
+        pytest.skip("this kernel has no /proc/<pid>/task/*/schedstat")
+
+    worked, leave = threading.Event(), threading.Event()
+
+    def work() -> None:
+        for _ in range(30):
+            time.sleep(0.001)
+        t_end = time.thread_time_ns() + 20_000_000
+        while time.thread_time_ns() < t_end:
+            pass
+        worked.set()
+        leave.wait()
+
+    t = threading.Thread(target=work)
+    t.start()
+    worked.wait()  # this thread sleeps once or twice meanwhile, the worker 30 times
+    during = bench._task_totals(os.getpid())
+    leave.set()
+    t.join()
+    assert during is not None
+    assert during[1] - before[1] >= 30
+    assert during[0] - before[0] >= 20_000_000  # the worker's 20 ms of CPU
+
+
+def test_idle_target_counts_wake_ups_beyond_the_health_message() -> None:
+    """No polling: a wake-up a second for health passes, ten a second fail; without
+    schedstat (NaN) the clock ticks must not move."""
+    allowed = cmd_bench.idle_wakeups_allowed()
+    assert allowed == 2.0  # the default health interval, 1 s: the loop and ZeroMQ's I/O thread
+
+    def run(wakeups: float, cpu_pct: float = 0.04) -> Any:
+        return argparse.Namespace(idle_wakeups_per_s=wakeups, idle_cpu_pct=cpu_pct)
+
+    assert cmd_bench.idle_without_polling(run(1.0))
+    assert not cmd_bench.idle_without_polling(run(10.0))
+    assert cmd_bench.idle_without_polling(run(float("nan"), 0.0))
+    assert not cmd_bench.idle_without_polling(run(float("nan"), 0.33))
 
 
 def test_round_ratios_pair_the_rounds_in_order() -> None:
