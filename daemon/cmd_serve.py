@@ -93,10 +93,16 @@ def run(args: argparse.Namespace) -> int:
 
     setup_logging(cfg.log_level)
     daemon = Daemon(cfg, args.config, overrides)
+    try:
+        daemon.open_recorder()
+    except ConfigError as exc:
+        print(f"lunad serve: {exc}", file=sys.stderr)
+        return EX_CONFIG
     daemon.install_signal_handlers()
     try:
         publisher = Publisher(cfg.publish.endpoint, cfg.publish.sndhwm)
     except PublishError as exc:
+        daemon.close_recorder()
         print(f"lunad serve: {exc}", file=sys.stderr)
         return EX_UNAVAILABLE
     # Start-up's ~30k objects (modules, pydantic schemas, the config) stay for the life
@@ -107,3 +113,5 @@ def run(args: argparse.Namespace) -> int:
         return daemon.run(publisher)
     finally:
         publisher.close()
+        if daemon.pub is not None:
+            daemon.pub.close()  # a SIGHUP's new endpoint

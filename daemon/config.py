@@ -9,6 +9,7 @@ every key commented is ``systemd/lunad.toml.example``.
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 import tomllib
 from pathlib import Path
@@ -142,6 +143,9 @@ class PublishSection(_Section):
         return v
 
 
+_KINDS = {bool: "true or false", int: "an integer", float: "a number", str: "a string"}
+
+
 class FilterSection(_Section):
     """[filter]: overrides of ``lunad.filters.FilterConfig`` (same names and units)."""
 
@@ -156,12 +160,15 @@ class FilterSection(_Section):
             if field is None:
                 raise ValueError(f"filter.{key}: unknown key; allowed: {', '.join(known)}")
             default = getattr(FilterConfig(), key)
-            if isinstance(default, bool) or not isinstance(default, (int, float)):
-                ok = isinstance(value, type(default))
+            if isinstance(default, (bool, int)) or not isinstance(default, float):
+                ok = type(value) is type(default)  # an int field takes no 2.7, no inf
             else:
                 ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+                if ok and not math.isfinite(value):
+                    raise ValueError(f"filter.{key}: must be a finite number, got {value!r}")
             if not ok:
-                raise ValueError(f"filter.{key}: must be a {type(default).__name__}, got {value!r}")
+                kind = _KINDS.get(type(default), f"a {type(default).__name__}")
+                raise ValueError(f"filter.{key}: must be {kind}, got {value!r}")
             values[key] = type(default)(value)
         try:
             return FilterConfig(**values)

@@ -55,6 +55,11 @@ class SerialSource(Source):
         """Open the port ``cfg`` names."""
         return cls(cfg.device, cfg.baud)
 
+    @property
+    def buffers(self) -> bool:
+        """True: the kernel (or a socket) keeps what arrives until it is read."""
+        return True
+
     def batch(self, nbytes: int) -> int:
         """Hold reads until ``nbytes`` (at most 255) are waiting: the tty's VMIN.
 
@@ -79,6 +84,7 @@ class SerialSource(Source):
 
     def _read(self, timeout_s: float | None) -> bytes:
         """One ``poll`` and one ``read`` on a real port; pyserial's path for URLs.
+        Whatever either raises is ``SourceLostError``.
 
         pyserial's ``read(1)`` then ``read(in_waiting)`` costs five system calls per
         frame; this is two, and still wakes on ``cancel()`` through pyserial's abort
@@ -89,10 +95,10 @@ class SerialSource(Source):
         ``socket://`` and ``spy://`` keep the generic path.
         """
         poll = self._poll
-        if poll is None:
-            return self._read_generic(timeout_s)
-        fd = self._fd
         try:
+            if poll is None:
+                return self._read_generic(timeout_s)
+            fd = self._fd
             ready = poll(None if timeout_s is None else timeout_s * 1000.0)
             if not ready:
                 return b""
@@ -102,7 +108,8 @@ class SerialSource(Source):
                     return b""  # nothing to read; when both are ready, data first
             data = os.read(fd, 4096)
         except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
-            # TypeError/AttributeError: pyserial's read on a port closed under it.
+            # TypeError/AttributeError: pyserial's read on a port closed under it;
+            # SerialException: also a ``socket://`` port whose server went away.
             raise SourceLostError(f"{self.device}: {exc}") from exc
         if not data:
             raise SourceLostError(f"{self.device}: readable but returned no data (unplugged?)")

@@ -36,12 +36,12 @@ from types import FrameType
 from typing import Any
 
 from lunad.daemon.config import Config, ConfigError, SourceSection, load_config
-from lunad.daemon.errors import PublishError, SourceLostError, SourceOpenError
+from lunad.daemon.errors import EX_UNAVAILABLE, PublishError, SourceLostError, SourceOpenError
 from lunad.daemon.health import Health, State
 from lunad.daemon.notify import Notifier
 from lunad.daemon.publisher import Publisher
 from lunad.daemon.record import Recorder
-from lunad.daemon.source import Source, open_source
+from lunad.daemon.source import Chunk, Source, open_source
 from lunad.daemon.wakeup import Wakeup
 from lunad.filters import Estimate, RangeFilter, Status
 from lunad.protocol import commands
@@ -94,6 +94,8 @@ class Daemon:
         self.notifier = notifier or Notifier.from_env()
         self._wake = Wakeup()
         self._stopping = False
+        self.exit_code = 0
+        """What ``run`` returns: 0, or ``EX_UNAVAILABLE`` when it had to stop."""
         self._reload_requested = False
         self._source: Source | None = None
         self.pub: Publisher | None = None
@@ -185,13 +187,8 @@ class Daemon:
         wd_ns = int(wd * NS) if wd else None
         next_wd = now
         ready_sent = False
-        if self.cfg.source.record:
-            self.recorder = Recorder(
-                self.cfg.source.record,
-                source_desc=self._source_desc(),
-                frame_rate_hz=self.cfg.sensor.frame_rate_hz,
-            )
-            log.info("recording every byte read to %s", self.cfg.source.record)
+        if self.recorder is None:
+            self.open_recorder()
         replay_waiting_logged = False
         log.info(
             "serving sensor %r from %s, publishing on %s%s",
@@ -208,6 +205,8 @@ class Daemon:
             if self._reload_requested:
                 self._reload_requested = False
                 self._reload(now)
+                if self._stopping:
+                    break
             held = self.cfg.source.kind == "replay" and not self.pub.subscriptions
             if held and not replay_waiting_logged:
                 log.info("replay waits for a subscriber before it starts")
@@ -255,8 +254,7 @@ class Daemon:
             self._after_read(got)
 
         self._drop_source()
-        if self.recorder is not None:
-            self.recorder.close()
+        self.close_recorder()
         notifier.stopping()
         self._wake.close()
         log.info(
@@ -265,7 +263,7 @@ class Daemon:
             self.parser.stats.checksum_errors,
             self.parser.stats.bytes_discarded,
         )
-        return 0
+        return self.exit_code
 
     def _sleep_until(self, deadline_ns: int, now: int) -> None:
         self._wake.wait(max(0.0, (deadline_ns - now) / NS))
@@ -313,7 +311,7 @@ class Daemon:
             data, t_read = chunk
             t_mono = self._last_bytes = monotonic_ns()  # a replay's chunks keep recorded times
             if self.recorder is not None:
-                self.recorder(chunk)
+                self._record(chunk)
             t_unix = t_read + self._unix_offset_ns
             items = feed(data, t_read)
             k = len(items)
@@ -333,13 +331,20 @@ class Daemon:
 
         While the sensor streams, a source that can batch (``Source.batch``: a serial
         port's VMIN) holds each read until a message's worth of frames
-        (``frame_rate / publish_hz``, rounded up) has arrived, and the loop sleeps in
-        that read: one wake-up per message, no timer. Other sources are read at each
-        publish time: the loop sleeps until then and takes what the source holds.
-        Either way it filters every frame and publishes the last, at most
-        ``publish_hz`` times a second. When no batch has come for twice the time one
-        takes (the sensor paused mid-batch), batching is switched off, so that the
-        frames short of it are read; it comes back once frames flow again.
+        (``frame_rate / publish_hz``, rounded up; at most half the time after which
+        the sensor counts as silent) has arrived, and the loop sleeps in that read:
+        one wake-up per message, no timer. A source that buffers but cannot batch
+        (``Source.buffers``: a ``socket://`` port) is read at each publish time: the
+        loop sleeps until then and takes what came. Any other source (I2C, a replay)
+        is read as it gives readings. Either way the loop filters every frame and
+        publishes the last, at most ``publish_hz`` times a second. When no batch has
+        come for twice the time one takes (the sensor paused mid-batch), batching is
+        switched off, so that the frames short of it are read; it comes back once
+        frames flow again.
+
+        Except on the publish-time schedule, a message is due by its read's own time
+        (``Chunk.t_mono_ns``): a replay's recorded one, so that it folds the frames as
+        the live run did at any ``--speed``.
 
         The frames of one read arrived a frame period apart, so the filter gets them
         spaced so, ending at the read time; their messages keep the read time (the
@@ -367,16 +372,18 @@ class Daemon:
             and monotonic_ns() - self._last_bytes < period
         ):
             self._unbatch()
-            held = src.batch(DATA_FRAME_LEN * -(-period // spacing))  # frames rounded up
+            frames = min(-(-period // spacing), max(1, self._waiting_after_ns // 2 // spacing))
+            held = src.batch(DATA_FRAME_LEN * frames)
             if held:
                 self._batched = src
                 self._batch_stall_ns = 2 * spacing * -(-held // DATA_FRAME_LEN)
                 batched = True
+        ticking = not batched and src.buffers
         while not (self._stopping or self._reload_requested):
             if pub.pending:
                 pub.pump()
             now = monotonic_ns()
-            if health.state is _CONNECTED and not batched:
+            if ticking and health.state is _CONNECTED:
                 tick = self._next_publish
                 if tick > until_ns:
                     tick = until_ns
@@ -391,15 +398,17 @@ class Daemon:
             else:
                 break
             now = monotonic_ns()
-            due = now >= self._next_publish
-            if due and not batched:
-                self._next_publish = max(self._next_publish + period, now)  # the sleep schedule
+            due = False
+            if ticking:
+                due = now >= self._next_publish
+                if due:
+                    self._next_publish = max(self._next_publish + period, now)
             if chunk is not None:
                 got = True
                 data, t_mono = chunk
                 self._last_bytes = now  # not t_mono: a replay's chunks keep recorded times
                 if self.recorder is not None:
-                    self.recorder(chunk)
+                    self._record(chunk)
                 items = feed(data, t_mono)
                 k = len(items)
                 for item in items:
@@ -410,15 +419,18 @@ class Daemon:
                         self._unsent = (item, raw_m, est, t_mono)
                     else:
                         self._on_reply(item)  # type: ignore[arg-type]
+                if not ticking:
+                    due = t_mono >= self._next_publish
             elif batched and now - self._last_bytes >= self._batch_stall_ns:
                 self._unbatch()
                 batched = False
+                ticking = src.buffers
             unsent = self._unsent
             if due and unsent is not None:
                 self._unsent = None
-                if batched:  # a period from this message, less half a frame of jitter
-                    self._next_publish = now + period - spacing // 2
                 frame, raw_m, est, t_read = unsent
+                if not ticking:  # a period from this message, less half a frame of jitter
+                    self._next_publish = t_read + period - spacing // 2
                 self._send_range(frame, raw_m, est, t_read, t_read + self._unix_offset_ns)
             if chunk is not None and (
                 health.state is not _CONNECTED or self._version_deadline is not None
@@ -503,6 +515,53 @@ class Daemon:
             self.health.state = state
             self._next_health = now
 
+    # -- recording ------------------------------------------------------------
+
+    def open_recorder(self) -> None:
+        """Start recording every byte read to ``source.record``, when it is set.
+        ``lunad serve`` calls it before binding, so that a bad path stops it there.
+
+        Raises:
+            ConfigError: the file cannot be opened or is not a recording; names the field.
+        """
+        self.recorder = self._new_recorder(self.cfg)
+
+    def _new_recorder(self, cfg: Config) -> Recorder | None:
+        path = cfg.source.record
+        if not path:
+            return None
+        try:
+            recorder = Recorder(
+                path, source_desc=self._source_desc(cfg), frame_rate_hz=cfg.sensor.frame_rate_hz
+            )
+        except (OSError, ValueError) as exc:  # RecordFormatError is a ValueError
+            raise ConfigError(f"source.record (--record): cannot record to {path}: {exc}") from None
+        log.info("recording every byte read to %s", path)
+        return recorder
+
+    def _record(self, chunk: Chunk) -> None:
+        """Append ``chunk`` to the recording. A failed write (a full or removed card)
+        ends the recording, not the daemon: the readings matter more than their copy.
+        The file keeps every record before it; a SIGHUP starts recording again."""
+        recorder = self.recorder
+        assert recorder is not None
+        try:
+            recorder(chunk)
+        except (OSError, ValueError) as exc:
+            note = f"recording to {recorder.path} stopped: {exc}"
+            log.error("%s; serving goes on, SIGHUP to record again", note)
+            self.health.last_error = note
+            self.close_recorder()
+
+    def close_recorder(self) -> None:
+        """Stop recording (fsync and close); safe to call twice."""
+        recorder, self.recorder = self.recorder, None
+        if recorder is not None:
+            try:
+                recorder.close()
+            except OSError as exc:
+                log.warning("closing the recording %s: %s", recorder.path, exc)
+
     def _publish_health(self, now: int) -> None:
         pub = self.pub
         assert pub is not None
@@ -562,6 +621,7 @@ class Daemon:
         self._recovered_seen = 0
         self._backoff = BACKOFF_FIRST_S
         self._last_bytes = now
+        self._next_publish = 0  # the first read's frames go out: its clock may be a replay's
         self._set_state(State.WAITING, now)
         self._version_deadline = self._configure(now)
 
@@ -610,8 +670,41 @@ class Daemon:
         self.filter.reset()
         self._unsent = None
 
-    def _source_desc(self) -> str:
-        s = self.cfg.source
+    def _rebind(self, new: Config, old: Config) -> None:
+        """Publish on ``new``'s endpoint and high-water mark from now on.
+
+        The new socket is bound before the old one closes, so subscribers of an
+        unchanged endpoint lose nothing. When that bind fails, the address may be the
+        running socket's own (the same TCP port with another ``sndhwm``, or ``*`` for
+        ``127.0.0.1``): the old socket is closed and the bind tried once more. If that
+        fails too, the old endpoint is bound back.
+
+        Raises:
+            PublishError: the new endpoint cannot be bound; the old one is in use again,
+                or, if even that failed, ``pub`` is None.
+        """
+        old_pub = self.pub
+        try:
+            pub = Publisher(new.publish.endpoint, new.publish.sndhwm)
+        except PublishError:
+            if old_pub is None:
+                raise
+            old_pub.close()
+            self.pub = None
+            try:
+                pub = Publisher(new.publish.endpoint, new.publish.sndhwm)
+            except PublishError:
+                self.pub = Publisher(old.publish.endpoint, old.publish.sndhwm)
+                self.pub.start_waker(self._wake_loop)
+                raise
+            old_pub = None
+        self.pub = pub
+        pub.start_waker(self._wake_loop)
+        if old_pub is not None:
+            old_pub.close()
+
+    def _source_desc(self, cfg: Config | None = None) -> str:
+        s = (cfg or self.cfg).source
         if s.kind == "serial":
             return f"serial {s.device}"
         if s.kind == "i2c":
@@ -634,17 +727,31 @@ class Daemon:
             for name in ("sensor", "source", "publish", "filter", "log_level")
             if getattr(new, name) != getattr(old, name)
         ]
-        if new.publish.endpoint != old.publish.endpoint or new.publish.sndhwm != old.publish.sndhwm:
+        recorder = self.recorder
+        if new.source.record != old.source.record or (recorder is None and new.source.record):
             try:
-                pub = Publisher(new.publish.endpoint, new.publish.sndhwm)
-            except PublishError as exc:
+                recorder = self._new_recorder(new)
+            except ConfigError as exc:
                 log.error("SIGHUP: keeping the running configuration: %s", exc)
                 self.notifier.ready()
                 return
-            old_pub, self.pub = self.pub, pub
-            pub.start_waker(self._wake_loop)
-            if old_pub is not None:
-                old_pub.close()
+        if new.publish.endpoint != old.publish.endpoint or new.publish.sndhwm != old.publish.sndhwm:
+            try:
+                self._rebind(new, old)
+            except PublishError as exc:
+                if recorder is not self.recorder and recorder is not None:
+                    recorder.close()
+                if self.pub is None:
+                    log.critical("SIGHUP: %s; cannot publish on any endpoint, stopping", exc)
+                    self._stopping = True
+                    self.exit_code = EX_UNAVAILABLE  # systemd restarts it on a failure
+                    return
+                log.error("SIGHUP: keeping the running configuration: %s", exc)
+                self.notifier.ready()
+                return
+        if recorder is not self.recorder:
+            self.close_recorder()
+            self.recorder = recorder
         self._apply(new)
         self.health.sensor = new.sensor.name
         if new.source != old.source or new.sensor != old.sensor:

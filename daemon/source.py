@@ -71,6 +71,15 @@ class Source(ABC):
         """
         return 0, None
 
+    @property
+    def buffers(self) -> bool:
+        """True when bytes wait in a buffer while nobody reads (a serial port's), so
+        that one ``read(0)`` after a sleep returns everything that came meanwhile: the
+        low-power loop may then sleep until each publish time. False, the default, for
+        sources that give one reading a read: an I2C source measures when it is read,
+        and a replay hands out one recorded read at a time."""
+        return False
+
     def batch(self, nbytes: int) -> int:
         """Hold a blocking ``read`` until ``nbytes`` have arrived; returns the batch held.
 

@@ -68,7 +68,13 @@ def no_leaks() -> Iterator[None]:
 class DaemonProc:
     """``lunad serve`` as a real subprocess, with its stderr kept for assertions."""
 
-    def __init__(self, args: list[str], tmp: Path, env: dict[str, str] | None = None) -> None:
+    def __init__(
+        self,
+        args: list[str],
+        tmp: Path,
+        env: dict[str, str] | None = None,
+        preexec_fn: Callable[[], None] | None = None,
+    ) -> None:
         self.log_path = tmp / f"daemon-{time.monotonic_ns()}.log"
         self._log = open(self.log_path, "wb")
         self.proc = subprocess.Popen(
@@ -76,6 +82,7 @@ class DaemonProc:
             stdout=self._log,
             stderr=subprocess.STDOUT,
             env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})},
+            preexec_fn=preexec_fn,
         )
 
     @property
@@ -104,8 +111,12 @@ def endpoint(tmp_path: Path) -> str:
 def start_daemon(tmp_path: Path) -> Iterator[Callable[..., DaemonProc]]:
     procs: list[DaemonProc] = []
 
-    def start(*args: str, env: dict[str, str] | None = None) -> DaemonProc:
-        d = DaemonProc(list(args), tmp_path, env)
+    def start(
+        *args: str,
+        env: dict[str, str] | None = None,
+        preexec_fn: Callable[[], None] | None = None,
+    ) -> DaemonProc:
+        d = DaemonProc(list(args), tmp_path, env, preexec_fn)
         procs.append(d)
         return d
 

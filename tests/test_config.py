@@ -42,7 +42,12 @@ def test_file_and_flags(tmp_path: Path) -> None:
         ('[publish]\nendpoint = "http://x"\n', {}, "publish.endpoint (--publish): must look like"),
         ('[source]\ndevcie = "/dev/x"\n', {}, "source.devcie: unknown key"),
         ("[filter]\nampref = 3\n", {}, "filter.ampref: unknown key; allowed: amp_ref"),
-        ('[filter]\namp_ref = "big"\n', {}, "filter.amp_ref: must be a float"),
+        ('[filter]\namp_ref = "big"\n', {}, "filter.amp_ref: must be a number, got 'big'"),
+        ("[filter]\nstep_confirm = inf\n", {}, "filter.step_confirm: must be an integer, got inf"),
+        ("[filter]\nstep_confirm = nan\n", {}, "filter.step_confirm: must be an integer, got nan"),
+        ("[filter]\nstep_confirm = 2.7\n", {}, "filter.step_confirm: must be an integer, got 2.7"),
+        ("[filter]\namp_ref = inf\n", {}, "filter.amp_ref: must be a finite number, got inf"),
+        ("[filter]\namp_ref = nan\n", {}, "filter.amp_ref: must be a finite number, got nan"),
         ("[source\n", {}, "is not valid TOML"),
     ],
 )

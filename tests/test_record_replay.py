@@ -4,7 +4,10 @@ bus through the whole daemon."""
 
 from __future__ import annotations
 
+import resource
+import signal
 import subprocess
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -168,3 +171,63 @@ def test_replay_keeps_sending_health(start_daemon: Any, endpoint: str, tmp_path:
                     break  # the replay's end
                 while_playing.append(msg.frames)
     assert len(while_playing) >= 3, f"health while the 4 s replay played: {while_playing} frames"
+
+
+def test_a_recording_that_cannot_be_opened_stops_serve_before_it_starts(
+    tmp_path: Path, endpoint: str
+) -> None:
+    """A missing directory, or a file that is not a recording: exit 78 (EX_CONFIG)
+    naming the field, nothing bound, the foreign file untouched."""
+    foreign = tmp_path / "notes.txt"
+    foreign.write_text("hello\n")
+    for path, why in ((tmp_path / "no" / "x.lunarec", "No such file"), (foreign, "magic")):
+        out = subprocess.run(
+            [sys.executable, "-m", "lunad.daemon.cli", "serve", "--device", "loop://",
+             "--publish", endpoint, "--record", str(path)],
+            capture_output=True, text=True, timeout=60,
+        )  # fmt: skip
+        assert out.returncode == 78, out.stderr
+        assert "source.record (--record): cannot record to" in out.stderr and why in out.stderr
+        assert "Traceback" not in out.stderr
+        assert not (tmp_path / "lunad.sock").exists()
+    assert foreign.read_text() == "hello\n"
+
+
+def _file_size_limit(nbytes: int) -> Callable[[], None]:
+    """For ``preexec_fn``: files the process writes stop at ``nbytes`` (EFBIG, as a full
+    card gives ENOSPC), and no SIGXFSZ kills it for trying."""
+
+    def limit() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (nbytes, nbytes))
+
+    return limit
+
+
+def test_a_full_disk_ends_the_recording_not_the_daemon(
+    device: Callable[..., PtyDevice],
+    start_daemon: Any,
+    endpoint: str,
+    tmp_path: Path,
+    helpers: Any,
+) -> None:
+    """Recording at 100 Hz into a 16 KiB limit fills it in about 6 s; the daemon logs
+    it, says it on health, and goes on publishing every frame."""
+    rec = tmp_path / "full.lunarec"
+    dev = device(rate_hz=100, output_enabled=False)
+    d = start_daemon(
+        "--device", dev.path, "--publish", endpoint, "--record", str(rec),
+        preexec_fn=_file_size_limit(16384),
+    )  # fmt: skip
+    with Subscriber(endpoint) as sub:
+        first = helpers.wait_for(sub, helpers.is_range, timeout=helpers.startup_s)
+        health = helpers.wait_for(
+            sub, lambda m: getattr(m, "last_error", None) and "recording" in m.last_error, 30
+        )
+        assert "recording to" in health.last_error and "stopped" in health.last_error
+        after = helpers.wait_for(sub, lambda m: helpers.is_range(m) and m.seq > first.seq + 200, 10)
+        assert d.proc.poll() is None
+    assert d.stop() == 0
+    assert "serving goes on" in d.log and "Traceback" not in d.log
+    recorded = b"".join(c.data for c in Replay(rec))
+    assert 0 < len(recorded) < 16384 and after.seq > len(recorded) // 9

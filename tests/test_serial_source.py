@@ -95,6 +95,31 @@ def test_hang_up_while_batched_is_source_lost(line: tuple[int, SerialSource]) ->
     assert time.monotonic() - t0 < 1.0  # a hang-up does not wait for the batch
 
 
+def test_a_socket_port_whose_server_went_away_is_source_lost() -> None:
+    """``socket://`` (ser2net, a Wi-Fi bridge): the server closing is a lost source the
+    daemon reconnects to, not an exception out of ``read`` that ends it."""
+    import socket
+
+    with socket.create_server(("127.0.0.1", 0)) as server:
+        port = server.getsockname()[1]
+        src = SerialSource(f"socket://127.0.0.1:{port}")
+        try:
+            conn, _ = server.accept()
+            conn.sendall(FRAME)
+            got = b""
+            deadline = time.monotonic() + 5.0
+            while len(got) < len(FRAME) and time.monotonic() < deadline:
+                chunk = src.read(0.5)
+                got += chunk[0] if chunk else b""
+            assert got == FRAME
+            conn.close()
+            with pytest.raises(SourceLostError, match=f"socket://127.0.0.1:{port}"):
+                for _ in range(10):
+                    src.read(0.5)
+        finally:
+            src.close()
+
+
 def test_url_ports_cannot_batch() -> None:
     src = SerialSource("loop://")
     try:

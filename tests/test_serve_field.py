@@ -100,6 +100,65 @@ def test_publish_hz_folds_frames(
     assert dev.reader_vmin == 0  # the paused sensor made it stop holding reads
 
 
+def test_publish_hz_folds_every_frame_of_a_source_read_as_it_gives_them(
+    start_daemon: Any, endpoint: str, tmp_path: Path
+) -> None:
+    """An I2C sensor is measured when read and a replay gives one recorded read a call:
+    neither holds readings for the loop, so ``--publish-hz`` must read them as they
+    come and fold by their times, not take one a publish time. A replay of reads one
+    frame each (a live serial run at full rate) folds 10 frames a message at
+    ``--publish-hz 10``, at any speed; the I2C sensor at 100 Hz about as many."""
+    from lunad.daemon.record import Recorder
+    from lunad.daemon.source import Chunk
+    from lunad.protocol.frame import encode_frame
+
+    rec = tmp_path / "one_a_read.lunarec"
+    with Recorder(rec, source_desc="test", frame_rate_hz=100) as r:
+        for j in range(300):
+            r(Chunk(encode_frame(200, 1500, 2368), 10**12 + (j + 1) * 10_000_000))
+    gaps = {}
+    for name, args in (
+        ("replay", ("--replay", str(rec), "--speed", "max")),
+        ("i2c", ("--bus", "sim", "--rate", "100")),
+    ):
+        d = start_daemon(*args, "--publish", endpoint, "--publish-hz", "10")
+        seqs: list[int] = []
+        with Subscriber(endpoint) as sub:
+            while len(seqs) < 15 and (m := sub.recv(timeout_s=30.0)) is not None:
+                if isinstance(m, RangeMessage):
+                    seqs.append(m.seq)
+        assert d.stop() == 0
+        assert len(seqs) >= 12, d.log
+        gaps[name] = sorted(b - a for a, b in itertools.pairwise(seqs[1:]))
+    assert gaps["replay"] == [10] * len(gaps["replay"])  # as the live run's reads came
+    assert 7 <= gaps["i2c"][len(gaps["i2c"]) // 2] <= 13  # the bus clock: a loaded host varies it
+
+
+def test_a_slow_publish_rate_does_not_read_as_a_silent_sensor(
+    device: Callable[..., PtyDevice], start_daemon: Any, endpoint: str, helpers: Any
+) -> None:
+    """At 5 frames a second and ``--publish-hz 0.5`` a message's 10 frames take 2 s, more
+    than the 1 s of silence that means ``waiting``: the batch the loop sleeps for is
+    capped at half that, so the daemon stays ``connected`` and publishes on time."""
+    dev = device(rate_hz=5, output_enabled=False)
+    d = start_daemon(
+        "--device", dev.path, "--publish", endpoint, "--rate", "5", "--publish-hz", "0.5"
+    )  # fmt: skip
+    states, seqs = [], []
+    with Subscriber(endpoint) as sub:
+        helpers.wait_for(sub, helpers.is_range, timeout=helpers.startup_s)
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 7.0:
+            m = sub.recv(timeout_s=0.5)
+            if isinstance(m, RangeMessage):
+                seqs.append(m.seq)
+            elif m is not None:
+                states.append(m.state)
+    assert d.stop() == 0
+    assert set(states) == {"connected"} and "no data from" not in d.log, d.log
+    assert len(seqs) >= 2 and all(b - a >= 5 for a, b in itertools.pairwise(seqs))
+
+
 def wait_until(cond: Callable[[], bool], within_s: float) -> bool:
     """Poll ``cond`` every 10 ms for up to ``within_s`` seconds."""
     deadline = time.monotonic() + within_s
@@ -213,6 +272,53 @@ def test_sighup_reload_good_and_bad(
     log = d.log
     assert "configuration reloaded" in log and "changed: sensor" in log
     assert "keeping the running configuration" in log and "amp_ref" in log
+
+
+def _free_tcp_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port: int = s.getsockname()[1]
+        return port
+
+
+def test_sighup_rebinds_the_same_tcp_port_and_starts_recording(
+    device: Callable[..., PtyDevice],
+    start_daemon: Any,
+    tmp_path: Path,
+    helpers: Any,
+) -> None:
+    """A reload that keeps the TCP port (a new ``sndhwm``, ``*`` for ``127.0.0.1``) is
+    taken, though the running socket holds the port; one that adds ``source.record``
+    starts the recording."""
+    from lunad.daemon.record import Replay
+
+    dev = device(rate_hz=100, output_enabled=False)
+    port = _free_tcp_port()
+    endpoint = f"tcp://127.0.0.1:{port}"
+    rec = tmp_path / "later.lunarec"
+    cfg = tmp_path / "t.toml"
+    base = f'[source]\ndevice = "{dev.path}"\n'
+    cfg.write_text(f'{base}[publish]\nendpoint = "{endpoint}"\n')
+    d = start_daemon("--config", str(cfg))
+    with Subscriber(endpoint) as sub:
+        helpers.wait_for(sub, helpers.is_range, timeout=helpers.startup_s)
+        for publish, extra in (
+            (f'endpoint = "{endpoint}"\nsndhwm = 500\n', ""),
+            (f'endpoint = "tcp://*:{port}"\nsndhwm = 500\n', f'record = "{rec}"\n'),
+        ):
+            cfg.write_text(f"{base}{extra}[publish]\n{publish}")
+            d.proc.send_signal(signal.SIGHUP)
+            deadline = time.monotonic() + 10
+            while d.log.count("configuration reloaded") < (2 if extra else 1):
+                assert "keeping the running configuration" not in d.log, d.log
+                assert time.monotonic() < deadline, d.log
+                time.sleep(0.05)
+            after = time.monotonic_ns()
+            helpers.wait_for(sub, lambda m, t=after: helpers.is_range(m) and m.t_mono_ns > t, 10)
+    assert d.stop() == 0
+    assert d.log.count("changed: publish") == 1 and "changed: source, publish" in d.log
+    assert f"recording every byte read to {rec}" in d.log
+    assert sum(len(c.data) for c in Replay(rec)) > 0
 
 
 def test_systemd_notify_and_watchdog(
