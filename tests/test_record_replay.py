@@ -235,7 +235,7 @@ def test_a_full_disk_ends_the_recording_not_the_daemon(
     helpers: Any,
 ) -> None:
     """Recording at 100 Hz into a 16 KiB limit fills it in about 6 s; the daemon logs
-    it, says it on health, and goes on publishing every frame."""
+    it, says it on health, and goes on publishing."""
     rec = tmp_path / "full.lunarec"
     dev = device(rate_hz=100, output_enabled=False)
     d = start_daemon(
