@@ -10,15 +10,18 @@ multipath spike; readings the sensor itself flags (amp < 100, amp > 32768) are l
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import os
 import re
 import signal
+import stat
 import statistics
 import sys
 import tempfile
 import threading
 import time
+import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -32,6 +35,7 @@ write it into the config file's [filter] section (comments are kept).
 
 Put the target square to the beam (or give --angle), fill the 2 degree beam with it
 (at 2 m the spot is 7 cm wide), and keep the scene still while it measures.
+Ctrl-C aborts: nothing is written.
 """
 
 EPILOG = """\
@@ -45,6 +49,7 @@ AMP_MIN_VALID = 100  # below: the sensor reports no distance (M05 p.16)
 AMP_AMBIENT = 32768  # above: ambient overexposure (M05 p.14)
 DISTANCE_TOLERANCE = 0.1  # relative disagreement with --distance that earns a warning
 MIN_READINGS = 20
+FILTER_TABLE: dict[str, Any] = {"filter": {}}  # what _table_header gives for [filter]
 
 
 @dataclass(frozen=True, slots=True)
@@ -87,32 +92,86 @@ def compute(
     return Calibration(amp / s, amp, dist, len(good), len(readings) - len(good))
 
 
+def _table_header(line: str) -> dict[str, Any] | None:
+    """The table a header line opens, as TOML reads it, or None for any other line.
+
+    ``[filter]  # bench`` and ``[ filter ]`` give ``{"filter": {}}``; ``[filter.sub]``
+    gives ``{"filter": {"sub": {}}}`` and ``[[filter]]`` ``{"filter": [{}]}``, so a caller
+    compares with ``{"filter": {}}``. Parsing the line with tomllib gets quoting, inner
+    spaces and trailing comments right without a TOML grammar of our own; a line of a
+    multi-line array (``[1, 2],``) is not a header and fails to parse.
+    """
+    if not line.lstrip().startswith("["):
+        return None
+    try:
+        return tomllib.loads(line)
+    except tomllib.TOMLDecodeError:
+        return None
+
+
 def write_amp_ref(path: Path, amp_ref: float) -> None:
-    """Set ``[filter] amp_ref`` in a TOML file, keeping everything else; atomic replace."""
-    text = path.read_text(encoding="utf-8") if path.exists() else ""
+    """Set ``[filter] amp_ref`` in a TOML file, keeping everything else; atomic replace.
+
+    The new file keeps the old one's permission bits, and its owner and group when we
+    run as root: the daemon reads it as its own user (``User=lunad`` in the unit), and a
+    temporary file is created 0600 and owned by us. A new file gets 0666 less the umask,
+    as ``open()`` would give it.
+
+    Raises:
+        ValueError: the edit would not leave a file where ``[filter] amp_ref`` reads back
+            as ``amp_ref`` (a layout this line-based edit does not follow); the file is
+            left as it was.
+        OSError: the file cannot be read or replaced.
+    """
+    old = path.stat() if path.exists() else None
+    text = path.read_text(encoding="utf-8") if old is not None else ""
     line = f"amp_ref = {amp_ref:.1f}"
     lines = text.splitlines()
-    section = None
+    section: dict[str, Any] | None = None
     for i, raw in enumerate(lines):
         stripped = raw.strip()
-        if stripped.startswith("["):
-            if section == "filter":
+        if (header := _table_header(raw)) is not None:
+            if section == FILTER_TABLE:
                 lines.insert(i, line)
                 break
-            section = stripped.strip("[] ")
-        elif section == "filter" and re.match(r"amp_ref\s*=", stripped):
+            section = header
+        elif section == FILTER_TABLE and re.match(r"amp_ref\s*=", stripped):
             comment = raw[raw.index("#") :] if "#" in raw else ""
             lines[i] = f"{line:29} {comment}".rstrip() if comment else line
             break
     else:
-        if section == "filter":
+        if section == FILTER_TABLE:
             lines.append(line)
         else:
             lines += ["", "[filter]", line]
+    new_text = "\n".join(lines) + "\n"
+    try:
+        written = tomllib.loads(new_text)["filter"]["amp_ref"]
+    except (tomllib.TOMLDecodeError, KeyError, TypeError):
+        written = None
+    if written != float(f"{amp_ref:.1f}"):
+        raise ValueError(
+            f"cannot place amp_ref in {path} safely; add `amp_ref = {amp_ref:.1f}` "
+            "under [filter] by hand"
+        )
+    if old is not None:
+        mode = stat.S_IMODE(old.st_mode)
+    else:
+        umask = os.umask(0)
+        os.umask(umask)
+        mode = 0o666 & ~umask
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    with os.fdopen(fd, "w", encoding="utf-8") as f:
-        f.write("\n".join(lines) + "\n")
-    os.replace(tmp, path)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            if old is not None and os.geteuid() == 0:
+                os.fchown(f.fileno(), old.st_uid, old.st_gid)
+            os.fchmod(f.fileno(), mode)
+            f.write(new_text)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
 
 
 def add_parser(sub: Any) -> None:
@@ -129,13 +188,21 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--reflectivity", type=float, required=True, metavar="R", help="0..1")
     p.add_argument("--distance", type=float, required=True, metavar="M", help="metres")
     p.add_argument("--angle", type=float, default=0.0, metavar="DEG", help="incidence angle")
-    p.add_argument("--seconds", type=float, default=5.0, metavar="S", help="how long to measure")
+    p.add_argument(
+        "--seconds", type=float, default=5.0, metavar="S", help="how long to measure (default 5)"
+    )
     p.add_argument("--write", action="store_true", help="write amp_ref into --config FILE")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Measure, report, and with ``--write`` update the config file."""
+    """Measure, report, and with ``--write`` update the config file.
+
+    SIGINT (Ctrl-C) or SIGTERM during the measurement aborts it: nothing is reported
+    or written and the exit code is 128 + the signal. A cut-short run would otherwise
+    be used as if complete, and a reading taken while someone walks up to stop it is
+    not a calibration.
+    """
     from lunad.daemon.config import load_config
     from lunad.daemon.errors import EX_CONFIG, ConfigError, SourceLostError, SourceOpenError
     from lunad.daemon.source import open_source
@@ -150,8 +217,14 @@ def run(args: argparse.Namespace) -> int:
         print(f"lunad calibrate: {exc}", file=sys.stderr)
         return EX_CONFIG
     stop = threading.Event()
+    stopped_by: list[int] = []
+
+    def on_signal(signum: int, _frame: object) -> None:
+        stopped_by.append(signum)
+        stop.set()
+
     for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+        signal.signal(sig, on_signal)
     try:
         src = open_source(cfg.source)
     except SourceOpenError as exc:
@@ -174,6 +247,10 @@ def run(args: argparse.Namespace) -> int:
             for item in parser.feed(chunk.data, chunk.t_mono_ns):
                 if isinstance(item, Frame):
                     readings.append((item.distance_m or 0.0, item.amp))
+    if stopped_by:
+        name = signal.Signals(stopped_by[0]).name
+        print(f"lunad calibrate: {name}: measurement aborted, nothing written", file=sys.stderr)
+        return 128 + stopped_by[0]
     try:
         cal = compute(readings, args.reflectivity, args.angle)
     except ValueError as exc:
@@ -191,7 +268,11 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     if args.write:
-        write_amp_ref(Path(args.config), cal.amp_ref)
+        try:
+            write_amp_ref(Path(args.config), cal.amp_ref)
+        except (OSError, ValueError) as exc:
+            print(f"lunad calibrate: --write: {exc}", file=sys.stderr)
+            return EX_CONFIG
         try:
             load_config(args.config)
         except ConfigError as exc:  # the file was broken before; say so plainly

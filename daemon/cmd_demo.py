@@ -55,6 +55,9 @@ def run(args: argparse.Namespace) -> int:
     from lunad.sim.pty_device import PtyDevice
     from lunad.sim.scenario import ScenarioError, load_scenario
 
+    if args.every < 1:  # watch() divides by it, after the sensor and the daemon are up
+        print("lunad demo: --every must be at least 1", file=sys.stderr)
+        return 2
     try:
         scenario = load_scenario(args.scenario)
     except ScenarioError as exc:

@@ -89,6 +89,7 @@ def add_parser(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Stream until SIGINT/SIGTERM or ``--duration``."""
+    from lunad.daemon.errors import EX_CONFIG
     from lunad.protocol.commands import FRAME_RATES_HZ
     from lunad.sim.physics import PaperSensor, RealisticSensor, Truth
     from lunad.sim.pty_device import TRUTH_OUT_HEADER, PtyDevice
@@ -123,10 +124,17 @@ def run(args: argparse.Namespace) -> int:
             duration = length
     else:
         truth = Truth(args.distance, args.reflectivity, args.angle, args.lux)
+    try:
+        out = open(args.truth_out, "w", encoding="utf-8") if args.truth_out else None
+    except OSError as exc:
+        print(
+            f"lunad sim: --truth-out: cannot write {args.truth_out}: {exc.strerror}",
+            file=sys.stderr,
+        )
+        return EX_CONFIG
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: done.set())
-    out = open(args.truth_out, "w", encoding="utf-8") if args.truth_out else None
     try:
         if out is not None:
             out.write(TRUTH_OUT_HEADER + "\n")

@@ -99,30 +99,33 @@ def watch(
     deadline = None if duration is None else time.monotonic() + duration
     last_health = ""
     with Subscriber(endpoint, sensor=sensor) as sub:
-        while count is None or readings < count:
-            left = None if deadline is None else deadline - time.monotonic()
-            if left is not None and left <= 0:
-                break
-            msg = sub.recv(timeout_s=0.5 if left is None else min(0.5, left))
-            if msg is None:
-                continue
-            if as_json:
-                out.write(msg.model_dump_json() + "\n")
-                readings += isinstance(msg, RangeMessage)
-                continue
-            if isinstance(msg, RangeMessage):
-                readings += 1
-                if refresh:
-                    out.write("\r" + format_range(msg)[:150] + "  " + last_health + "\x1b[K")
-                    out.flush()
-                elif readings % every == 0:
-                    out.write(format_range(msg) + "\n")
-            else:
-                last_health = f"[{msg.state} {msg.fps:.0f} fps]"
+        try:
+            while count is None or readings < count:
+                left = None if deadline is None else deadline - time.monotonic()
+                if left is not None and left <= 0:
+                    break
+                msg = sub.recv(timeout_s=0.5 if left is None else min(0.5, left))
+                if msg is None:
+                    continue
+                if as_json:
+                    out.write(msg.model_dump_json() + "\n")
+                    readings += isinstance(msg, RangeMessage)
+                    continue
+                if isinstance(msg, RangeMessage):
+                    readings += 1
+                    if refresh:
+                        out.write("\r" + format_range(msg)[:150] + "  " + last_health + "\x1b[K")
+                        out.flush()
+                    elif readings % every == 0:
+                        out.write(format_range(msg) + "\n")
+                else:
+                    last_health = f"[{msg.state} {msg.fps:.0f} fps]"
+                    if not refresh:
+                        out.write(format_health(msg) + "\n")
                 if not refresh:
-                    out.write(format_health(msg) + "\n")
-            if not refresh:
-                out.flush()
+                    out.flush()
+        except KeyboardInterrupt:
+            pass  # Ctrl-C is the usual stop: the summary still counts what came
         result = WatchResult(readings, sub.lost, sub.last_seq)
     if refresh:
         out.write("\n")

@@ -201,6 +201,7 @@ class I2CSource(Source):
         try:
             self._bus: SMBusLike | None = factory(bus)
         except OSError as exc:
+            self._cancel.close()  # the daemon retries every 2 s: a pipe a try would add up
             raise SourceOpenError(f"cannot open {self}: {exc}{_hint(exc)}") from exc
         try:
             self._start()

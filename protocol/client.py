@@ -6,16 +6,17 @@
             print(msg.range_m if msg.kind == "range" else msg.state)
 
 ZeroMQ reconnects a SUB socket by itself, so a daemon restart needs nothing from the
-caller. The subscriber checks every ``range`` message's ``seq`` and counts the messages
-it missed in ``lost`` (a daemon restart, seen as ``seq`` going back, is not a loss; in
-the daemon's ``--publish-hz`` mode the gaps are frames folded on purpose). A message
-repeating the last ``seq`` is the daemon's last-value cache answering another
-subscriber's arrival, and is dropped. Messages that do not decode are counted in
-``bad_messages`` and skipped.
+caller. The subscriber checks every ``range`` message's ``seq``, sensor by sensor, and
+counts the messages it missed in ``lost`` (a daemon restart, seen as ``seq`` going back,
+is not a loss; in the daemon's ``--publish-hz`` mode the gaps are frames folded on
+purpose). A message repeating its sensor's last ``seq`` is the daemon's last-value
+cache answering another subscriber's arrival, and is dropped. Messages that do not
+decode are counted in ``bad_messages`` and skipped.
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterable, Iterator
 from types import TracebackType
 
@@ -60,6 +61,8 @@ class Subscriber:
         self.lost = 0
         self.bad_messages = 0
         self.last_seq: int | None = None
+        """``seq`` of the last ``range`` message returned, of whichever sensor."""
+        self._last_seqs: dict[str, int] = {}
         ctx = context or zmq.Context.instance()
         self._sock = ctx.socket(zmq.SUB)
         self._sock.setsockopt(zmq.LINGER, 0)
@@ -73,11 +76,14 @@ class Subscriber:
         self._sock.connect(endpoint)
 
     def recv(self, timeout_s: float | None = None) -> Message | None:
-        """The next message, or None when none came within ``timeout_s`` seconds."""
-        timeout_ms = None if timeout_s is None else max(0, int(timeout_s * 1000))
+        """The next message, or None when none came within ``timeout_s`` seconds
+        (messages skipped meanwhile, of another sensor or repeated, count against it)."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
         while True:
-            if timeout_ms is not None and not self._sock.poll(timeout_ms):
-                return None
+            if deadline is not None:
+                left_ms = max(0, int((deadline - time.monotonic()) * 1000))
+                if not self._sock.poll(left_ms):
+                    return None
             parts = self._sock.recv_multipart()
             if len(parts) != 2:
                 self.bad_messages += 1
@@ -90,7 +96,7 @@ class Subscriber:
             except (ValueError, ValidationError):
                 self.bad_messages += 1
                 continue
-            if isinstance(msg, RangeMessage) and not self._track(msg.seq):
+            if isinstance(msg, RangeMessage) and not self._track(msg.sensor, msg.seq):
                 continue
             return msg
 
@@ -100,14 +106,15 @@ class Subscriber:
             if msg is not None:
                 yield msg
 
-    def _track(self, seq: int) -> bool:
-        """Note ``seq``; False for a repeat of the last one (a cache replay)."""
-        last = self.last_seq
+    def _track(self, sensor: str, seq: int) -> bool:
+        """Note ``sensor``'s ``seq``; False for a repeat of its last one (a cache replay)."""
+        last = self._last_seqs.get(sensor)
         if last is not None:
             if seq == last:
                 return False
             if seq > last + 1:
                 self.lost += seq - last - 1
+        self._last_seqs[sensor] = seq
         self.last_seq = seq
         return True
 

@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
+import os
+import signal
+import stat
 import subprocess
+import time
+import tomllib
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -115,3 +120,114 @@ def test_write_without_config_is_a_usage_error(helpers: Any) -> None:
         timeout=30,
     )
     assert r.returncode == 78 and "--write needs --config" in r.stderr
+
+
+@pytest.mark.parametrize(
+    "header",
+    [
+        "[filter]  # tuned on the bench",
+        "[ filter ]  # inner spaces",
+        '  ["filter"]\t# quoted key',
+        "[filter]#x",
+    ],
+)
+def test_write_finds_a_filter_header_toml_allows(tmp_path: Path, header: str) -> None:
+    """A header with a comment or inner spaces is still [filter]: no second table."""
+    f = tmp_path / "a.toml"
+    f.write_text(f'[sensor]\nname = "x"\n\n{header}\namp_ref = 2000.0\ns_min = 0.05\n')
+    write_amp_ref(f, 1500.0)
+    cfg = load_config(f)
+    assert cfg.filter.to_filter_config().amp_ref == 1500.0
+    assert f.read_text().count("amp_ref") == 1 and header in f.read_text()
+
+
+def test_write_tells_other_tables_and_arrays_from_filter(tmp_path: Path) -> None:
+    """[filter.sub], [[array]] and a nested array's rows do not open or close [filter]."""
+    f = tmp_path / "a.toml"
+    f.write_text(
+        "[filter]\nrows = [\n  [1, 2],\n  [3, 4],\n]\n\n[[probe]]\nx = 1\n\n[filter.sub]\ny = 2\n"
+    )
+    write_amp_ref(f, 1500.0)
+    data = tomllib.loads(f.read_text())
+    assert data["filter"]["amp_ref"] == 1500.0 and data["filter"]["rows"] == [[1, 2], [3, 4]]
+    assert data["filter"]["sub"] == {"y": 2} and data["probe"] == [{"x": 1}]
+
+
+def test_write_refuses_a_layout_it_cannot_edit(tmp_path: Path) -> None:
+    """[[filter]] is an array of tables, not [filter]: refuse and leave the file alone."""
+    f = tmp_path / "a.toml"
+    before = "[[filter]]\namp_ref = 2000.0\n"
+    f.write_text(before)
+    with pytest.raises(ValueError, match="by hand"):
+        write_amp_ref(f, 1500.0)
+    assert f.read_text() == before and os.listdir(tmp_path) == ["a.toml"]
+
+
+def test_write_keeps_the_file_mode(tmp_path: Path) -> None:
+    """The daemon's user must still read the file: 0644 stays 0644, 0640 stays 0640."""
+    for mode in (0o644, 0o640):
+        f = tmp_path / f"{mode:o}.toml"
+        f.write_text("[filter]\namp_ref = 2000.0\n")
+        f.chmod(mode)
+        write_amp_ref(f, 1500.0)
+        assert stat.S_IMODE(f.stat().st_mode) == mode
+    old_umask = os.umask(0o022)
+    try:
+        write_amp_ref(tmp_path / "new.toml", 1500.0)
+    finally:
+        os.umask(old_umask)
+    assert stat.S_IMODE((tmp_path / "new.toml").stat().st_mode) == 0o644
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="only root can give a file to another owner")
+def test_write_as_root_keeps_owner_and_group(tmp_path: Path) -> None:
+    f = tmp_path / "a.toml"
+    f.write_text("[filter]\namp_ref = 2000.0\n")
+    os.chown(f, 4321, 8765)
+    write_amp_ref(f, 1500.0)
+    st = f.stat()
+    assert (st.st_uid, st.st_gid) == (4321, 8765)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_a_signal_aborts_and_writes_nothing(
+    device: Callable[..., PtyDevice], tmp_path: Path, helpers: Any, sig: signal.Signals
+) -> None:
+    """Ctrl-C mid-measurement is not 'use what you have': no result, file untouched."""
+    dev = device(rate_hz=250, output_enabled=False)
+    cfg = tmp_path / "front.toml"
+    before = f'[source]\ndevice = "{dev.path}"\n\n[filter]\namp_ref = 1234.0\n'
+    cfg.write_text(before)
+    proc = subprocess.Popen(
+        [
+            *helpers.lunad,
+            "calibrate",
+            "--config",
+            str(cfg),
+            "--reflectivity",
+            "0.9",
+            "--distance",
+            "2.0",
+            "--seconds",
+            "60",
+            "--write",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        deadline = time.monotonic() + helpers.startup_s
+        while dev.frames_sent < 250:  # streaming starts when calibrate configures the sensor
+            assert time.monotonic() < deadline, "calibrate never started the sensor"
+            assert proc.poll() is None, proc.stderr.read() if proc.stderr else ""
+            time.sleep(0.05)
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 128 + sig, err
+    assert f"lunad calibrate: {sig.name}: measurement aborted, nothing written" in err
+    assert "amp_ref" not in out and cfg.read_text() == before

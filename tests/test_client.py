@@ -2,7 +2,13 @@
 
 from __future__ import annotations
 
+import signal
+import subprocess
+import sys
+import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import zmq
@@ -11,10 +17,100 @@ from lunad.protocol.client import Subscriber
 from lunad.protocol.messages import RangeMessage, encode_range, topic
 
 
-def msg(seq: int) -> bytes:
+def msg(seq: int, sensor: str = "c") -> bytes:
     return encode_range(
-        b'"c"', seq, 1, 2, 1.0, 500, 30.0, 0.25, 1.0, 0.01, 10.0, "ok", b"[]", "stable"
+        f'"{sensor}"'.encode(), seq, 1, 2, 1.0, 500, 30.0, 0.25, 1.0, 0.01, 10.0, "ok", b"[]",
+        "stable",
+    )  # fmt: skip
+
+
+@contextmanager
+def publishing(ep: str, sensors: tuple[str, ...], hz: float = 200.0) -> Iterator[None]:
+    """A PUB socket on ``ep`` sending each sensor's range messages, seq 0, 1, 2, ...,
+    ``hz`` rounds a second from a thread, until the block ends."""
+    ctx = zmq.Context()
+    pub = ctx.socket(zmq.PUB)
+    pub.bind(ep)
+    stop = threading.Event()
+
+    def run() -> None:
+        seq = 0
+        while not stop.wait(1.0 / hz):
+            for name in sensors:
+                pub.send_multipart([topic("range", name), msg(seq, name)])
+            seq += 1
+
+    t = threading.Thread(target=run)
+    t.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        t.join()
+        pub.close(linger=0)
+        ctx.term()
+
+
+def test_recv_returns_at_its_timeout_while_other_sensors_talk(tmp_path: Path) -> None:
+    """``front`` subscribes to the prefix ``range/front``, which ``front2``'s messages
+    share: skipping them must not restart the wait, or robot code blocks forever."""
+    ep = f"ipc://{tmp_path}/o.sock"
+    returned: list[object] = []
+    with publishing(ep, ("front2",)), Subscriber(ep, sensor="front") as sub:
+        t = threading.Thread(target=lambda: returned.append(sub.recv(timeout_s=0.5)))
+        t.start()
+        t.join(timeout=10.0)
+        assert not t.is_alive(), "recv(timeout_s=0.5) still blocked after 10 s"
+    assert returned == [None]
+
+
+def test_lost_is_counted_per_sensor(tmp_path: Path) -> None:
+    """Two sensors on one endpoint, every message received: nothing lost. One seq
+    counter for both would see 0, 0, 1, 1, ... and count repeats and gaps."""
+    ep = f"ipc://{tmp_path}/two.sock"
+    got: dict[str, list[int]] = {"a": [], "b": []}
+    with publishing(ep, ("a", "b")), Subscriber(ep, kinds=["range"]) as sub:
+        deadline = time.monotonic() + 20.0
+        while min(len(v) for v in got.values()) < 100:
+            assert time.monotonic() < deadline, {k: len(v) for k, v in got.items()}
+            m = sub.recv(timeout_s=5.0)
+            assert isinstance(m, RangeMessage)
+            got[m.sensor].append(m.seq)
+        assert sub.lost == 0
+    for seqs in got.values():
+        assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))
+
+
+def _watch(ep: str, *args: str) -> subprocess.Popen[str]:
+    return subprocess.Popen(
+        [sys.executable, "-m", "lunad.daemon.cli", "watch", "--connect", ep, *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
     )
+
+
+def test_watch_prints_its_summary_on_ctrl_c_and_keeps_its_duration(tmp_path: Path) -> None:
+    ep = f"ipc://{tmp_path}/w.sock"
+    with publishing(ep, ("front",)):
+        w = _watch(ep, "--sensor", "front")
+        try:
+            assert w.stdout is not None
+            for _ in range(5):
+                assert w.stdout.readline().startswith("#")
+            w.send_signal(signal.SIGINT)
+            _, err = w.communicate(timeout=10)
+        finally:
+            w.kill()
+        assert w.returncode == 0
+        assert "readings, 0 lost (seq gaps)" in err
+    with publishing(ep, ("front2",)):
+        only_front2 = _watch(ep, "--sensor", "front", "--duration", "1")
+        try:
+            _, err = only_front2.communicate(timeout=20)  # it waited forever before
+        finally:
+            only_front2.kill()
+        assert only_front2.returncode == 0 and "0 readings, 0 lost" in err
 
 
 def test_gaps_restarts_and_bad_messages(tmp_path: Path) -> None:
@@ -32,7 +128,6 @@ def test_gaps_restarts_and_bad_messages(tmp_path: Path) -> None:
             assert isinstance(first, RangeMessage)
             while sub.recv(timeout_s=0.1) is not None:
                 pass
-            sub.last_seq = 0
             for seq in (1, 2, 5, 6):
                 pub.send_multipart([topic("range", "c"), msg(seq)])
             pub.send_multipart([topic("range", "c"), b"{not json"])

@@ -197,6 +197,21 @@ def test_bus_factory_oserror_is_an_open_error():
         I2CSource("1", smbus_factory=no_permission)
 
 
+def test_failed_opens_leave_no_descriptors_behind():
+    """The daemon retries an absent bus every 2 s: a pipe left open by each try ran a
+    Pi out of descriptors in about 17 minutes (then os.pipe raised EMFILE)."""
+    import os
+
+    def absent(bus: int | str) -> FakeSMBus:
+        raise FileNotFoundError(errno.ENOENT, "No such file or directory", f"/dev/i2c-{bus}")
+
+    before = len(os.listdir("/proc/self/fd"))
+    for _ in range(50):
+        with pytest.raises(SourceOpenError):
+            I2CSource("1", smbus_factory=absent)
+    assert len(os.listdir("/proc/self/fd")) == before
+
+
 def test_bad_arguments_are_value_errors(fake: FakeSMBus):
     with pytest.raises(ValueError, match="address"):
         I2CSource("1", address=0x78, smbus_factory=lambda _bus: fake)
