@@ -131,7 +131,9 @@ def test_publish_hz_folds_every_frame_of_a_source_read_as_it_gives_them(
         assert len(seqs) >= 12, d.log
         gaps[name] = sorted(b - a for a, b in itertools.pairwise(seqs[1:]))
     assert gaps["replay"] == [10] * len(gaps["replay"])  # as the live run's reads came
-    assert 7 <= gaps["i2c"][len(gaps["i2c"]) // 2] <= 13  # the bus clock: a loaded host varies it
+    # 10 by the bus's clock; a loaded host makes the I2C source miss samples (6 seen in
+    # a CI run), and taking one reading a publish time, as before, gave 1
+    assert 3 <= gaps["i2c"][len(gaps["i2c"]) // 2] <= 13
 
 
 def test_a_slow_publish_rate_does_not_read_as_a_silent_sensor(
