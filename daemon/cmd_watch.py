@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from dataclasses import dataclass
@@ -21,6 +22,14 @@ examples:
   lunad watch --connect tcp://127.0.0.1:7781 --refresh
   lunad watch --connect tcp://127.0.0.1:7781 --json --count 100 > readings.jsonl
 """
+
+NOTHING_YET_AFTER_S = 5.0
+"""ZeroMQ connects in the background and says nothing when it cannot: after this long
+with no message, say what to check."""
+NOTHING_YET = (
+    "lunad watch: nothing from %s yet; is the daemon running and publishing there"
+    " (--publish, [publish] endpoint), and for an ipc:// socket may you read it (group lunad)?"
+)
 
 
 def add_parser(sub: Any) -> None:
@@ -97,6 +106,8 @@ def watch(
 
     readings = 0
     deadline = None if duration is None else time.monotonic() + duration
+    heard = False
+    hint_at = time.monotonic() + NOTHING_YET_AFTER_S
     last_health = ""
     with Subscriber(endpoint, sensor=sensor) as sub:
         try:
@@ -106,7 +117,11 @@ def watch(
                     break
                 msg = sub.recv(timeout_s=0.5 if left is None else min(0.5, left))
                 if msg is None:
+                    if not heard and time.monotonic() >= hint_at:
+                        hint_at = math.inf
+                        print(NOTHING_YET % endpoint, file=sys.stderr)
                     continue
+                heard = True
                 if as_json:
                     out.write(msg.model_dump_json() + "\n")
                     readings += isinstance(msg, RangeMessage)

@@ -117,6 +117,11 @@ EOF
 
 do_install() {
     need_root
+    # PREFIX is ours alone: uninstall removes what is in it. A directory that exists,
+    # holds files and has no marker (/usr/local, say) belongs to someone else.
+    if [ -d "$ROOT$PREFIX" ] && [ ! -f "$MARKER" ] && [ -n "$(ls -A "$ROOT$PREFIX")" ]; then
+        die "$PREFIX already holds other files; lunad needs a directory of its own (the default /opt/lunad, or a new one)"
+    fi
     install_venv
     install -d -m 0755 "$UNIT_DIR" "$ROOT/etc/sysusers.d" "$ROOT/etc/modules-load.d" \
         "$CONF_DIR" "$SHARE"
@@ -179,7 +184,13 @@ do_uninstall() {
     rm -f "$UNIT" "$SYSUSERS" "$MODULES" "$CONF_DIR/lunad.toml.example"
     if [ -d "$ROOT$PREFIX" ]; then
         if [ -f "$MARKER" ]; then
-            rm -rf "$ROOT$PREFIX"
+            # Only what install put there: an older install wrote its marker into a
+            # PREFIX it shared with other files.
+            rm -rf "$VENV"
+            rm -f "$SHARE/99-tfluna.rules" "$SHARE/raspberry-pi.md" "$MARKER"
+            rmdir "$SHARE" 2>/dev/null || true
+            rmdir "$ROOT$PREFIX" 2>/dev/null ||
+                say "kept $PREFIX: it holds files lunad did not put there"
         else
             say "not removing $PREFIX: it has no .lunad-install marker, so it is not ours"
         fi

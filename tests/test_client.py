@@ -113,6 +113,15 @@ def test_watch_prints_its_summary_on_ctrl_c_and_keeps_its_duration(tmp_path: Pat
         assert only_front2.returncode == 0 and "0 readings, 0 lost" in err
 
 
+def test_watch_says_what_to_check_when_nothing_comes(tmp_path: Path) -> None:
+    """No daemon on the endpoint (or a socket it may not read): ZeroMQ is silent about
+    it, so watch says so itself after a few seconds, once, and keeps waiting."""
+    w = _watch(f"ipc://{tmp_path}/nobody.sock", "--duration", "7")
+    _, err = w.communicate(timeout=30)
+    assert w.returncode == 0
+    assert err.count("nothing from ipc://") == 1 and "group lunad" in err
+
+
 def test_gaps_restarts_and_bad_messages(tmp_path: Path) -> None:
     ep = f"ipc://{tmp_path}/c.sock"
     ctx = zmq.Context()

@@ -410,6 +410,33 @@ def test_install_honours_prefix_and_refuses_foreign_dirs(tmp_path: Path) -> None
     assert r.returncode == 0, r.stderr
     assert (foreign / "usr/local/keep").is_dir()
     assert "not ours" in r.stdout
+    # ... nor installed into: uninstall would not know what to remove.
+    r = subprocess.run(["sh", script, "install"], capture_output=True, text=True, env=env)
+    assert r.returncode != 0 and "already holds other files" in r.stderr
+    assert sorted(p.name for p in (foreign / "usr/local").iterdir()) == ["keep"]
+
+
+def test_uninstall_removes_only_what_install_put_in_prefix(tmp_path: Path) -> None:
+    """An install older than the check above wrote its marker into a shared PREFIX;
+    uninstalling it deleted the whole directory. Now only lunad's files go."""
+    root = tmp_path / "root"
+    env = {
+        **os.environ,
+        "DESTDIR": str(root),
+        "PREFIX": "/usr/local",
+        "LUNAD_INSTALL_SKIP_PIP": "1",
+    }
+    script = str(REPO / "systemd/install.sh")
+    r = subprocess.run(["sh", script, "install"], capture_output=True, text=True, env=env)
+    assert r.returncode == 0, r.stderr
+    (root / "usr/local/venv/bin").mkdir(parents=True)  # what pip would have made
+    (root / "usr/local/bin").mkdir()
+    (root / "usr/local/bin/someone-elses-tool").write_text("keep\n")
+    r = subprocess.run(["sh", script, "uninstall"], capture_output=True, text=True, env=env)
+    assert r.returncode == 0, r.stderr
+    left = sorted(str(p.relative_to(root / "usr/local")) for p in (root / "usr/local").rglob("*"))
+    assert left == ["bin", "bin/someone-elses-tool"]
+    assert "kept /usr/local" in r.stdout
 
 
 @pytest.mark.skipif(shutil.which("systemd-sysusers") is None, reason="no systemd-sysusers")
