@@ -40,6 +40,14 @@ LUX_HIGH_AMBIENT = 20_000.0  # paper section IV.A and Table I: degradation above
 S_STABLE_MIN = 0.35  # paper's stable region R > 0.5 and angle < 45 deg: R cos(theta) > 0.354
 
 
+VALUE_MIN = 1e-9
+VALUE_MAX = 1e9
+"""Every float setting lies in this range (or is 0 where 0 is allowed). Sane ones lie
+well inside it (``k_m_per_lux`` about 1e-7, lux thresholds about 1e5); beyond it the
+filter's arithmetic overflows (``k_m_per_lux = 1e-320`` made ``lux_est`` infinite), and
+the published JSON would carry ``inf``, which no JSON parser accepts."""
+
+
 @dataclass(frozen=True, slots=True)
 class FilterConfig:
     """Everything the filter needs to know about the sensor and the policy.
@@ -121,19 +129,23 @@ class FilterConfig:
     def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)
-            if f.name in (
+            zero_ok = f.name in (
                 "lux_init",
                 "hysteresis",
                 "zone_hysteresis",
                 "range_hysteresis_m",
                 "range_feed_margin_m",
                 "accel_psd",
-            ):
-                ok = value >= 0
-            else:
-                ok = value > 0
-            if not ok:
+            )
+            if not (value >= 0 if zero_ok else value > 0):
                 raise ValueError(f"FilterConfig.{f.name} must be positive, got {value!r}")
+            if isinstance(value, float) and not (
+                VALUE_MIN <= value <= VALUE_MAX or (zero_ok and value == 0.0)
+            ):
+                raise ValueError(
+                    f"FilterConfig.{f.name} must be {'0 or ' if zero_ok else ''}between"
+                    f" {VALUE_MIN:g} and {VALUE_MAX:g}, got {value!r}"
+                )
         if self.min_range_m >= self.max_range_m:
             raise ValueError("FilterConfig.min_range_m must be below max_range_m")
         if self.step_confirm < 1:

@@ -48,6 +48,8 @@ def test_file_and_flags(tmp_path: Path) -> None:
         ("[filter]\nstep_confirm = 2.7\n", {}, "filter.step_confirm: must be an integer, got 2.7"),
         ("[filter]\namp_ref = inf\n", {}, "filter.amp_ref: must be a finite number, got inf"),
         ("[filter]\namp_ref = nan\n", {}, "filter.amp_ref: must be a finite number, got nan"),
+        ("[filter]\nk_m_per_lux = 1e-320\n", {}, "k_m_per_lux must be between 1e-09 and 1e+09"),
+        ("[filter]\naccel_psd = 1e300\n", {}, "accel_psd must be 0 or between 1e-09 and 1e+09"),
         ("[source\n", {}, "is not valid TOML"),
     ],
 )
