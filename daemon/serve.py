@@ -754,7 +754,8 @@ class Daemon:
             self.recorder = recorder
         self._apply(new)
         self.health.sensor = new.sensor.name
-        if new.source != old.source or new.sensor != old.sensor:
+        same_port = new.source.model_copy(update={"record": old.source.record}) == old.source
+        if not same_port or new.sensor != old.sensor:  # a new recording keeps the port open
             self._drop_source()
             self._next_open = now
         log.info(

@@ -320,6 +320,7 @@ def test_sighup_rebinds_the_same_tcp_port_and_starts_recording(
     assert d.stop() == 0
     assert d.log.count("changed: publish") == 1 and "changed: source, publish" in d.log
     assert f"recording every byte read to {rec}" in d.log
+    assert d.log.count("opened serial") == 1  # neither reload reopened the port
     assert sum(len(c.data) for c in Replay(rec)) > 0
 
 
