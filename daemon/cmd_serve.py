@@ -113,5 +113,5 @@ def run(args: argparse.Namespace) -> int:
         return daemon.run(publisher)
     finally:
         publisher.close()
-        if daemon.pub is not None:
+        if daemon.pub is not None and daemon.pub is not publisher:
             daemon.pub.close()  # a SIGHUP's new endpoint
