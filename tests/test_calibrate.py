@@ -20,6 +20,14 @@ from lunad.sim.physics import AMP_REF, RealisticSensor, Truth
 from lunad.sim.pty_device import PtyDevice
 
 
+def write_amp_ref_argv(helpers: Any, cfg: Path, seconds: str) -> list[str]:
+    """``lunad calibrate --write`` into ``cfg`` for a 0.9 target at 2 m."""
+    return [
+        *helpers.lunad, "calibrate", "--config", str(cfg), "--reflectivity", "0.9",
+        "--distance", "2.0", "--seconds", seconds, "--write",
+    ]  # fmt: skip
+
+
 def test_compute_uses_median_of_usable_readings() -> None:
     readings = [(2.0, 1800)] * 30 + [(0.0, 50)] * 10 + [(2.0, 40000)] * 5 + [(9.9, 1700)]
     cal = compute(readings, 0.9, 0.0)
@@ -60,19 +68,7 @@ def test_calibrate_on_the_virtual_sensor(
     cfg = tmp_path / "front.toml"
     cfg.write_text(f'[source]\ndevice = "{dev.path}"\n')
     r = subprocess.run(
-        [
-            *helpers.lunad,
-            "calibrate",
-            "--config",
-            str(cfg),
-            "--reflectivity",
-            "0.9",
-            "--distance",
-            "2.0",
-            "--seconds",
-            "1",
-            "--write",
-        ],
+        write_amp_ref_argv(helpers, cfg, seconds="1"),
         capture_output=True,
         text=True,
         timeout=30,
@@ -199,19 +195,7 @@ def test_a_signal_aborts_and_writes_nothing(
     before = f'[source]\ndevice = "{dev.path}"\n\n[filter]\namp_ref = 1234.0\n'
     cfg.write_text(before)
     proc = subprocess.Popen(
-        [
-            *helpers.lunad,
-            "calibrate",
-            "--config",
-            str(cfg),
-            "--reflectivity",
-            "0.9",
-            "--distance",
-            "2.0",
-            "--seconds",
-            "60",
-            "--write",
-        ],
+        write_amp_ref_argv(helpers, cfg, seconds="60"),
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

@@ -390,16 +390,21 @@ def test_make_install_and_uninstall_into_destdir(tmp_path: Path) -> None:
     assert not (root / "etc/lunad").exists()
 
 
-def test_install_honours_prefix_and_refuses_foreign_dirs(tmp_path: Path) -> None:
-    root = tmp_path / "root"
+def install_sh(action: str, root: Path, prefix: str) -> subprocess.CompletedProcess[str]:
+    """``systemd/install.sh ACTION`` staged under ``root`` with ``PREFIX=prefix``, no pip."""
     env = {
         **os.environ,
         "DESTDIR": str(root),
-        "PREFIX": "/srv/lunad",
+        "PREFIX": prefix,
         "LUNAD_INSTALL_SKIP_PIP": "1",
     }
     script = str(REPO / "systemd/install.sh")
-    r = subprocess.run(["sh", script, "install"], capture_output=True, text=True, env=env)
+    return subprocess.run(["sh", script, action], capture_output=True, text=True, env=env)
+
+
+def test_install_honours_prefix_and_refuses_foreign_dirs(tmp_path: Path) -> None:
+    root = tmp_path / "root"
+    r = install_sh("install", root, "/srv/lunad")
     assert r.returncode == 0, r.stderr
     svc = service_settings((root / "etc/systemd/system/lunad@.service").read_text())
     assert svc["ExecStart"][0].startswith("/srv/lunad/venv/bin/lunad serve --config ")
@@ -407,13 +412,12 @@ def test_install_honours_prefix_and_refuses_foreign_dirs(tmp_path: Path) -> None
     # A PREFIX the installer did not create is never deleted.
     foreign = tmp_path / "root2"
     (foreign / "usr/local/keep").mkdir(parents=True)
-    env |= {"DESTDIR": str(foreign), "PREFIX": "/usr/local"}
-    r = subprocess.run(["sh", script, "uninstall"], capture_output=True, text=True, env=env)
+    r = install_sh("uninstall", foreign, "/usr/local")
     assert r.returncode == 0, r.stderr
     assert (foreign / "usr/local/keep").is_dir()
     assert "not ours" in r.stdout
     # ... nor installed into: uninstall would not know what to remove.
-    r = subprocess.run(["sh", script, "install"], capture_output=True, text=True, env=env)
+    r = install_sh("install", foreign, "/usr/local")
     assert r.returncode != 0 and "already holds other files" in r.stderr
     assert sorted(p.name for p in (foreign / "usr/local").iterdir()) == ["keep"]
 
@@ -422,19 +426,12 @@ def test_uninstall_removes_only_what_install_put_in_prefix(tmp_path: Path) -> No
     """An install older than the check above wrote its marker into a shared PREFIX;
     uninstalling it deleted the whole directory. Now only lunad's files go."""
     root = tmp_path / "root"
-    env = {
-        **os.environ,
-        "DESTDIR": str(root),
-        "PREFIX": "/usr/local",
-        "LUNAD_INSTALL_SKIP_PIP": "1",
-    }
-    script = str(REPO / "systemd/install.sh")
-    r = subprocess.run(["sh", script, "install"], capture_output=True, text=True, env=env)
+    r = install_sh("install", root, "/usr/local")
     assert r.returncode == 0, r.stderr
     (root / "usr/local/venv/bin").mkdir(parents=True)  # what pip would have made
     (root / "usr/local/bin").mkdir()
     (root / "usr/local/bin/someone-elses-tool").write_text("keep\n")
-    r = subprocess.run(["sh", script, "uninstall"], capture_output=True, text=True, env=env)
+    r = install_sh("uninstall", root, "/usr/local")
     assert r.returncode == 0, r.stderr
     left = sorted(str(p.relative_to(root / "usr/local")) for p in (root / "usr/local").rglob("*"))
     assert left == ["bin", "bin/someone-elses-tool"]
