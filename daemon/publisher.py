@@ -52,6 +52,7 @@ class Publisher:
         self.subscriptions = 0
         self._last: dict[bytes, bytes] = {}
         self._pumped = threading.Event()
+        self._closing = False
         self.pending = True
         """Set by the waker: the socket may hold a subscription; ``pump`` clears it."""
         self._waker: threading.Thread | None = None
@@ -127,6 +128,8 @@ class Publisher:
                 if self._waker_stop_r in ready:
                     return
                 self._pumped.clear()
+                if self._closing:
+                    return  # close() may have set _pumped just before that clear; no pump will come
                 self.pending = True
                 wake()
                 self._pumped.wait(WAKER_HANDSHAKE_S)
@@ -137,6 +140,7 @@ class Publisher:
     def close(self) -> None:
         """Stop the waker, close the socket and its context; safe to call twice."""
         if self._waker is not None:
+            self._closing = True
             os.write(self._waker_stop_w, b"x")
             self._pumped.set()  # release a waker waiting for the loop's handshake
             self._waker.join(timeout=2.0)
