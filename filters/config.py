@@ -150,3 +150,15 @@ class FilterConfig:
             raise ValueError("FilterConfig.min_range_m must be below max_range_m")
         if self.step_confirm < 1:
             raise ValueError("FilterConfig.step_confirm must be at least 1")
+        for name in ("hysteresis", "zone_hysteresis"):
+            if getattr(self, name) >= 1.0:
+                raise ValueError(
+                    f"FilterConfig.{name} must be below 1 (a fraction: 0.1 is 10 %), got"
+                    f" {getattr(self, name)!r}; at 1 or more a band is never left"
+                )
+        if 2.0 * self.range_hysteresis_m >= self.max_range_m - self.min_range_m:
+            raise ValueError(
+                "FilterConfig.range_hysteresis_m must be under half of max_range_m -"
+                f" min_range_m, got {self.range_hysteresis_m!r}; out of range would"
+                " never be left"
+            )

@@ -15,11 +15,15 @@ after 0.5 s less than 1 % of the old level remains, and c_hat scatters by about
 
 Robustness (spikes, steps): before it enters the average, e^2 is winsorised at
 (2.5^2) V_hat, using the current estimate; a multipath spike or a step then moves
-c^2 by at most alpha (6.25 / kappa - 1), a few percent, instead of dragging it by
-orders of magnitude. kappa = E[min(Z^2, 2.5^2)] = 0.978 removes the clipping's bias
-for Gaussian noise. The same clip bounds how fast c_hat can grow when it is far too
-small (x1.1 per frame in c at 250 Hz), so a sudden sun still converges in a few
-dozen frames. Departure from the paper: it treats L as known; here it is inferred.
+c^2 by a bounded step instead of dragging it by orders of magnitude: at most
+alpha (6.25 / kappa - 1), 22 % at 250 Hz, where c^2 / S^2 makes most of V_hat, and
+more where P00 and q do (a strong near target, c^2 far below sigma0^2: x6.4 in one
+spike); that c^2 sits far below what the zone and the ambient flag act on, and
+lux_zone (tau 1 s) moves about 2 % at 30 klux. kappa = E[min(Z^2, 2.5^2)] = 0.978
+removes the clipping's bias for Gaussian noise. The same clip bounds how fast c_hat
+can grow when it is far too small (x1.1 per frame in c at 250 Hz), so a sudden sun
+still converges in a few dozen frames. Departure from the paper: it treats L as
+known; here it is inferred.
 
 Gaps: after frames went missing, the gap's length would give the next sample a large
 weight (``dt / tau``, up to 0.5), though one sample says no more after a gap than

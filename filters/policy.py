@@ -68,7 +68,7 @@ class DropoutPolicy:
         inv_amp_ref = 1.0 / config.amp_ref
         self._amp_strong = first_amp_at_least(config.amp_min, config.s_min, inv_amp_ref)
         self._amp_strong_again = first_amp_at_least(
-            config.amp_min * (1.0 + h), config.s_min * (1.0 + h), inv_amp_ref
+            band_edge(config.amp_min, h), band_edge(config.s_min, h), inv_amp_ref
         )
         self._min_m = config.min_range_m
         self._max_m = config.max_range_m
@@ -119,6 +119,13 @@ class DropoutPolicy:
         else:
             self.ambient = lux > self._lux_enter
         return self.ambient
+
+
+def band_edge(threshold: float, h: float) -> float:
+    """``threshold * (1 + h)``, the far edge of a hysteresis band, to 12 significant
+    digits: in floats 100 * 1.1 is 110.00000000000001 and 0.05 * 1.1 is
+    0.05500000000000001, which kept amp 110 inside a band documented to end there."""
+    return float(f"{threshold * (1.0 + h):.12g}")
 
 
 def first_amp_at_least(amp_min: float, s_min: float, inv_amp_ref: float) -> int:

@@ -22,7 +22,7 @@ from math import sqrt
 from lunad.filters.config import AMP_AMBIENT, AMP_SATURATED, FilterConfig
 from lunad.filters.estimate import Estimate, Reason, Status, Zone
 from lunad.filters.lux import PRED_SKIP_RATIO, WEIGHT_GROWTH_MAX, LuxConstants
-from lunad.filters.policy import first_amp_at_least
+from lunad.filters.policy import band_edge, first_amp_at_least
 from lunad.filters.zone import ZoneClassifier
 
 _SATURATED = (Reason.SATURATED,)
@@ -118,7 +118,7 @@ class RangeFilter:
         # policy.py
         self._amp_strong = first_amp_at_least(c.amp_min, c.s_min, inv_amp_ref)
         self._amp_strong_again = first_amp_at_least(
-            c.amp_min * (1.0 + h), c.s_min * (1.0 + h), inv_amp_ref
+            band_edge(c.amp_min, h), band_edge(c.s_min, h), inv_amp_ref
         )
         self._min_in = c.min_range_m + c.range_hysteresis_m
         self._max_in = c.max_range_m - c.range_hysteresis_m
@@ -169,7 +169,12 @@ class RangeFilter:
         true per-reading sigma): the same gates, Kalman filter and step logic, only
         the measurement variance differs. ``sigma_m`` excludes the quantisation,
         which is added as in :meth:`step`. The lux estimator is not updated.
+
+        Raises:
+            ValueError: ``sigma_m`` is not above 0 (``step`` reads 0 as "estimate it").
         """
+        if not sigma_m > 0.0:
+            raise ValueError(f"sigma_m must be above 0 metres, got {sigma_m!r}")
         return self.step(raw_m, amp, t_mono_ns, sigma_m)
 
     def step(
@@ -189,12 +194,15 @@ class RangeFilter:
         t = t_mono_ns
         s = amp * self._inv_amp_ref
         last = self._last_t_ns
-        self._last_t_ns = t
         if last is None:
-            self._last_accept_ns = t
+            self._last_t_ns = self._last_accept_ns = t
             dt = 0.0
-        else:
+        elif t >= last:
+            self._last_t_ns = t
             dt = (t - last) * 1e-9
+        else:  # stamped before the last frame: taken as at its time, not counted twice
+            t = last
+            dt = 0.0
 
         # Gates with hysteresis (policy.py: DropoutPolicy.gate).
         z: float | None = None  # the reading, when it may feed the filter
@@ -302,14 +310,20 @@ class RangeFilter:
                     self.x = x + k0 * e
                     self.v += k1 * e
                     self.p00 = p00 - k0 * p00
-                    self.p01 = p01 - k0 * p01
-                    self.p11 -= k1 * p01
+                    p11 = self.p11 - k1 * p01
+                    if p11 < 0.0:  # kalman.py: Tracker.update
+                        self.p01 = self.p11 = 0.0
+                    else:
+                        self.p01 = p01 - k0 * p01
+                        self.p11 = p11
                     self._last_accept_ns = t
             else:
                 self._start(z, r)
                 self._last_accept_ns = t
-        elif active and dt > 0.0:
-            self._predict(dt)
+        elif active:
+            self._run_n = 0  # kalman.py: Tracker.end_run
+            if dt > 0.0:
+                self._predict(dt)
 
         # Publish or not (ReferenceFilter.step), ambient flag and zone.
         if not reasons and self.active:

@@ -87,6 +87,8 @@ class ReferenceFilter:
         self, raw_m: float | None, amp: int, t_mono_ns: int, sigma_m: float
     ) -> Estimate:
         """As ``RangeFilter.step_known_sigma``: the reading's noise given, not estimated."""
+        if not sigma_m > 0.0:
+            raise ValueError(f"sigma_m must be above 0 metres, got {sigma_m!r}")
         return self.step(raw_m, amp, t_mono_ns, sigma_m)
 
     def step(
@@ -97,12 +99,15 @@ class ReferenceFilter:
         t = t_mono_ns
         s = amp * self._inv_amp_ref
         last = self._last_t_ns
-        self._last_t_ns = t
         if last is None:
-            self._last_accept_ns = t
+            self._last_t_ns = self._last_accept_ns = t
             dt = 0.0
-        else:
+        elif t >= last:
+            self._last_t_ns = t
             dt = (t - last) * 1e-9
+        else:  # stamped before the last frame: taken as at its time, not counted twice
+            t = last
+            dt = 0.0
         pol = self.policy
         tr = self.tracker
         reasons = pol.gate(raw_m, amp)
@@ -122,6 +127,7 @@ class ReferenceFilter:
                 self._last_accept_ns = t
         elif tr.active:
             tr.predict(dt)
+            tr.end_run()
         if not reasons and tr.active:
             x = tr.x
             if self._min_m <= x <= self._max_m:

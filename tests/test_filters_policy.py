@@ -103,3 +103,16 @@ def test_integer_threshold_decides_as_comparing_s(
         if a >= 0:
             strong = not (a < amp_min or a * inv < s_min)
             assert (a >= t) == strong, (a, t)
+
+
+def test_the_weak_band_ends_at_amp_110_as_documented() -> None:
+    """docs/filter.md: readings stay weak until amp >= 110 and S >= 0.055. In floats
+    100 * 1.1 is 110.00000000000001, which moved the edge to 111."""
+    from lunad.filters import RangeFilter
+
+    p = DropoutPolicy(CFG)
+    gate(p, None, 95)
+    assert gate(p, 3.0, 110) == ()
+    flt = RangeFilter(CFG)
+    flt.step(None, 95, 0)
+    assert flt.step(3.0, 110, 4_000_000).reasons == ()

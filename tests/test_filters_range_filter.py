@@ -206,3 +206,83 @@ def test_config_rejects_nonsense_naming_the_field() -> None:
         FilterConfig(sigma0_m=0.0)
     with pytest.raises(ValueError, match="min_range_m"):
         FilterConfig(min_range_m=9.0)
+
+
+@pytest.mark.parametrize("between", [(None, 60), (3.0, 60), (9.5, 1500)])
+@pytest.mark.parametrize("cls", [RangeFilter, ReferenceFilter])
+def test_spikes_apart_do_not_confirm_a_step(
+    cls: type[RangeFilter], between: tuple[float | None, int]
+) -> None:
+    """Only consecutive outliers confirm a step (docs/filter.md). Two spikes with
+    frames between them that do not feed the filter (no distance, a weak signal,
+    beyond the range) are two spikes: a repeated multipath return 1.5 m too far once
+    passed as a step and was published as ``ok``."""
+    flt = cls()
+    feed(flt, noisy(random.Random(4), 2.0, 1800, 200), 1800)
+    k = 200
+    assert flt.step(3.50, 1800, k * FRAME_NS).reasons == (Reason.OUTLIER,)
+    z, amp = between
+    for k in range(201, 276):  # 0.3 s
+        flt.step(z, amp, k * FRAME_NS)
+    second = flt.step(3.51, 1800, 276 * FRAME_NS)
+    assert second.reasons == (Reason.OUTLIER,)
+    assert second.range_m == pytest.approx(2.0, abs=0.05)
+    assert flt.step(2.0, 1800, 277 * FRAME_NS).status is Status.OK
+
+
+@pytest.mark.parametrize("cls", [RangeFilter, ReferenceFilter])
+def test_a_frame_stamped_early_does_not_count_its_time_twice(cls: type[RangeFilter]) -> None:
+    """A read's frames are stamped a frame period apart ending at the read, so a sensor
+    faster than ``--rate`` stamps some before the frame ahead of them. The next
+    frame's prediction must cover only the time that passed; it covered the
+    backward jump a second time, and a target receding at 1 m/s came out 10 cm off."""
+    flt = cls()
+    rng = random.Random(6)
+    worst = 0.0
+    for k in range(600):
+        truth = 2.0 + k * FRAME_NS * 1e-9  # 1 m/s
+        t = k * FRAME_NS - (100_000_000 if k == 400 else 0)
+        z = round((truth + rng.gauss(0, sigma_of(1800))) * 100) / 100
+        est = flt.step(z, 1800, t)
+        if k > 300 and est.range_m is not None:
+            worst = max(worst, abs(est.range_m - truth))
+    assert worst < 0.03
+
+
+@pytest.mark.parametrize("cls", [RangeFilter, ReferenceFilter])
+def test_rounding_never_makes_the_covariance_negative(cls: type[RangeFilter]) -> None:
+    """A valid but extreme config (a tiny measurement variance next to a huge speed
+    prior) cancelled p11 below 0 in floats; the next frame's sqrt then raised and
+    would have ended the daemon."""
+    cfg = FilterConfig(resolution_m=1e-6, init_speed_sigma_m_s=1000.0, amp_ref=1.0, accel_psd=0.0)
+    flt = cls(cfg)
+    t = 0
+    for dt in (0, 300_000_000, *[FRAME_NS] * 20):  # a first gap, then 250 Hz
+        t += dt
+        est = flt.step(2.0, 2000, t)
+        assert est.sigma_m is not None and est.sigma_m >= 0.0
+
+
+@pytest.mark.parametrize("cls", [RangeFilter, ReferenceFilter])
+def test_known_sigma_must_be_positive(cls: type[RangeFilter]) -> None:
+    """``step`` reads a sigma of 0 as "estimate it", so ``step_known_sigma(..., 0)``
+    estimated the noise and moved the lux estimate, against its docstring."""
+    with pytest.raises(ValueError, match="sigma_m"):
+        cls().step_known_sigma(2.0, 1800, 0, 0.0)
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [
+        ("hysteresis", 1.0),
+        ("hysteresis", 10.0),
+        ("zone_hysteresis", 1.0),
+        ("range_hysteresis_m", 4.0),
+    ],
+)
+def test_config_rejects_a_band_that_is_never_left(field: str, value: float) -> None:
+    """At hysteresis >= 1 an exit threshold is at or below 0 (high_ambient and the
+    unreliable zone then never clear), and a range band as wide as half the range
+    never lets a reading back in."""
+    with pytest.raises(ValueError, match=field):
+        FilterConfig(**{field: value})
