@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import math
 import signal
 import sys
 import threading
@@ -87,12 +89,48 @@ def add_parser(sub: Any) -> None:
     p.set_defaults(func=run)
 
 
+TRUTH_FLAGS = {
+    "distance": "distance_m",
+    "reflectivity": "reflectivity",
+    "angle": "angle_deg",
+    "lux": "lux",
+}
+"""Each truth flag and the scenario field whose range (``FIELD_LIMITS``) it shares."""
+
+
+def _bad_number_flag(args: argparse.Namespace) -> str | None:
+    """The error line for the first numeric flag out of its range, or None.
+
+    A NaN or infinite truth reached the device thread and killed it (the sim then
+    ran mute and exited 0), so every number is checked here, before anything starts.
+    """
+    from lunad.sim.scenario import FIELD_LIMITS
+
+    for flag, key in TRUTH_FLAGS.items():
+        value = getattr(args, flag)
+        lo, hi = FIELD_LIMITS[key]
+        if not lo <= value <= hi:
+            return f"--{flag} must be within {lo:g}..{hi:g}, got {value}"
+    for name in ("garbage_rate", "corrupt_rate"):
+        if not 0.0 <= getattr(args, name) <= 1.0:
+            return f"--{name.replace('_', '-')} must be in 0..1"
+    if not (math.isfinite(args.noise_scale) and args.noise_scale > 0):
+        return f"--noise-scale must be positive and finite, got {args.noise_scale}"
+    if args.duration is not None and not (math.isfinite(args.duration) and args.duration >= 0):
+        return f"--duration must be a finite number of seconds >= 0, got {args.duration}"
+    return None
+
+
 def run(args: argparse.Namespace) -> int:
-    """Stream until SIGINT/SIGTERM or ``--duration``."""
+    """Stream until SIGINT/SIGTERM or ``--duration``.
+
+    Returns 0, 2 for a bad option (one line on stderr), EX_CONFIG for an unwritable
+    ``--truth-out``, 1 when the virtual sensor's thread died.
+    """
     from lunad.daemon.errors import EX_CONFIG
     from lunad.protocol.commands import FRAME_RATES_HZ
     from lunad.sim.physics import PaperSensor, RealisticSensor, Truth
-    from lunad.sim.pty_device import TRUTH_OUT_HEADER, PtyDevice
+    from lunad.sim.pty_device import TRUTH_OUT_HEADER, DeviceError, PtyDevice
 
     scenario = None
     if args.scenario:
@@ -107,12 +145,9 @@ def run(args: argparse.Namespace) -> int:
     if rate not in FRAME_RATES_HZ:
         print(f"lunad sim: --rate must be 0 or 500/n Hz (1..250), got {rate}", file=sys.stderr)
         return 2
-    for name in ("garbage_rate", "corrupt_rate"):
-        if not 0.0 <= getattr(args, name) <= 1.0:
-            print(f"lunad sim: --{name.replace('_', '-')} must be in 0..1", file=sys.stderr)
-            return 2
-    if args.noise_scale <= 0:
-        print("lunad sim: --noise-scale must be positive", file=sys.stderr)
+    bad = _bad_number_flag(args)
+    if bad is not None:
+        print(f"lunad sim: {bad}", file=sys.stderr)
         return 2
     model = RealisticSensor(args.noise_scale) if args.profile == "realistic" else PaperSensor()
     truth: Truth | Callable[[float], Truth]
@@ -147,15 +182,26 @@ def run(args: argparse.Namespace) -> int:
             garbage_rate=args.garbage_rate,
             corrupt_rate=args.corrupt_rate,
             truth_out=out,
+            on_error=lambda _exc: done.set(),
         )
-        with dev:
-            print(
-                f"virtual TF-Luna on {dev.path} -> {dev.slave_name}, {rate} Hz, "
-                f"{args.profile} profile{f', scenario {scenario.name}' if scenario else ''}; "
-                "Ctrl-C to stop",
-                flush=True,
-            )
-            done.wait(duration)
+        try:
+            dev.start()
+        except (OSError, ValueError) as exc:
+            reason = getattr(exc, "strerror", None) or exc
+            print(f"lunad sim: --link: cannot make {dev.path}: {reason}", file=sys.stderr)
+            return 2
+        try:
+            with contextlib.closing(dev):
+                print(
+                    f"virtual TF-Luna on {dev.path} -> {dev.slave_name}, {rate} Hz, "
+                    f"{args.profile} profile{f', scenario {scenario.name}' if scenario else ''}; "
+                    "Ctrl-C to stop",
+                    flush=True,
+                )
+                done.wait(duration)
+        except DeviceError as exc:
+            print(f"lunad sim: {exc}", file=sys.stderr)
+            return 1
         print(
             f"sent {dev.frames_sent} good frames, {dev.frames_corrupted} corrupted, "
             f"{dev.garbage_bytes} garbage bytes, {dev.frames_unread} dropped unread, "

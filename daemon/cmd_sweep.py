@@ -38,6 +38,17 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _seed(text: str) -> int:
+    """A seed for ``numpy.random.default_rng``, which refuses negative ones."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {value}")
+    return value
+
+
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Register ``sweep`` on the ``lunad`` command line."""
     p = subparsers.add_parser(
@@ -74,7 +85,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--seed",
-        type=int,
+        type=_seed,
         help="seed of the random generator (default: a fixed one, so that runs repeat)",
     )
     p.add_argument(

@@ -288,14 +288,16 @@ def encode_reply(cmd_id: int, payload: bytes) -> bytes:
     return encode_command(cmd_id, payload)
 
 
-def split_commands(buf: bytearray) -> list[tuple[int, bytes]]:
-    """Take every complete ``5A`` command out of ``buf`` (host to sensor direction).
+MIN_COMMAND_LEN = 4  # 5A Len ID CS: the shortest command (M05 p.13)
+
+
+def take_command_frames(buf: bytearray) -> list[bytes]:
+    """Take every complete ``5A`` command out of ``buf`` (host to sensor direction),
+    each whole from header to checksum byte.
 
     Bytes before a header are dropped; an incomplete command stays in ``buf``.
-    Checksums are not checked, as the sensor does not check them by default
-    (M05 p.13). Returns ``(cmd_id, payload)`` pairs in order.
     """
-    out: list[tuple[int, bytes]] = []
+    out: list[bytes] = []
     while True:
         start = buf.find(COMMAND_HEADER)
         if start < 0:
@@ -306,10 +308,20 @@ def split_commands(buf: bytearray) -> list[tuple[int, bytes]]:
         if len(buf) < 2:
             return out
         length = buf[1]
-        if length < 4:
+        if length < MIN_COMMAND_LEN:
             del buf[:1]
             continue
         if len(buf) < length:
             return out
-        out.append((buf[2], bytes(buf[3 : length - 1])))
+        out.append(bytes(buf[:length]))
         del buf[:length]
+
+
+def split_commands(buf: bytearray) -> list[tuple[int, bytes]]:
+    """``take_command_frames`` as ``(cmd_id, payload)`` pairs, in order.
+
+    Checksums are not checked, as the sensor does not check them by default
+    (M05 p.13); the virtual sensor, which must once ID 0x08 turns checking on,
+    takes the whole frames.
+    """
+    return [(frame[2], frame[3:-1]) for frame in take_command_frames(buf)]

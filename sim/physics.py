@@ -8,8 +8,10 @@ How this works: the paper (seed 000, section III, eqs 1-3) models one reading as
 
 and drops a reading when S < 0.05 or D_meas is outside [0.2, 8.0] m. The virtual
 sensor turns S into the ``amp`` field with ``amp = S * AMP_REF`` and applies the real
-sensor's rules (TFLUNA.md section 4): amp below 100 reports distance 0, distances are
-quantised to 1 cm.
+sensor's rules (TFLUNA.md section 4): amp below the amp threshold (100 by default,
+ID 0x22) reports no distance, distances are quantised to 1 cm. A model is told the
+threshold only so that it draws no noise for a reading the sensor will not report;
+``VirtualSensor.data_frame`` puts the dummy distance on the wire.
 
 The realistic profile (:class:`RealisticSensor`) is what the daemon meets in the
 field, for scenarios and ``lunad eval``:
@@ -44,7 +46,7 @@ AMP_REF = 2000.0
 threshold S_min = 0.05 this puts the dropout at amp 100, the sensor's own weak-signal
 threshold (M05 p.16)."""
 
-AMP_WEAK = 100  # below this the sensor reports dummy distance 0 (M05 p.16)
+AMP_WEAK = 100  # default amp threshold: below it the sensor sends dummy_dist (M05 p.16)
 AMP_MAX = 0xFFFF  # 16-bit field; 65535 means overexposure (M05 p.14)
 PAPER_SIGMA0_M = 0.01  # eq. 2, sigma0, read in metres (docs/paper-model.md)
 PAPER_K_M_PER_LUX = 0.0001  # eq. 2, k, metres per lux
@@ -126,11 +128,18 @@ class PaperSensor:
         self.k_m_per_lux = k_m_per_lux
         self.amp_ref = amp_ref
 
-    def sample(self, truth: Truth, rng: random.Random) -> RawReading:
-        """Draw one reading for ``truth`` using ``rng``."""
+    def sample(self, truth: Truth, rng: random.Random, amp_threshold: int = AMP_WEAK) -> RawReading:
+        """Draw one reading for ``truth`` using ``rng``.
+
+        Args:
+            amp_threshold: the sensor's amp threshold (ID 0x22). A reading whose strength
+                S is below ``amp_threshold / amp_ref`` gets no distance (0, ``sigma_m``
+                None) and draws no noise. S is tested before amp is rounded: the paper
+                drops S < 0.05 (eq. 1), and S = 0.0498 rounds to amp 100.
+        """
         s = truth.reflectivity * math.cos(math.radians(truth.angle_deg))
         amp = max(0, min(AMP_MAX, round(s * self.amp_ref)))
-        if amp < AMP_WEAK or s <= 0.0:
+        if s <= 0.0 or s < amp_threshold / self.amp_ref:
             return RawReading(0, amp)
         sigma = self.sigma0_m + self.k_m_per_lux * truth.lux
         d = truth.distance_m + rng.gauss(0.0, sigma) / s
@@ -183,8 +192,13 @@ class RealisticSensor:
         s = amp / self.amp_ref
         return (self.sigma0_m + self.k_m_per_lux * truth.lux) / s
 
-    def sample(self, truth: Truth, rng: random.Random) -> RawReading:
-        """Draw one reading for ``truth`` using ``rng``."""
+    def sample(self, truth: Truth, rng: random.Random, amp_threshold: int = AMP_WEAK) -> RawReading:
+        """Draw one reading for ``truth`` using ``rng``.
+
+        Args:
+            amp_threshold: the sensor's amp threshold (ID 0x22). A reading with a lower
+                amp (or amp 0) gets no distance (0, ``sigma_m`` None) and draws no noise.
+        """
         amp_f = self.amp_of(truth)
         if self.amp_noise > 0.0:
             amp_f *= 1.0 + self.amp_noise * rng.gauss(0.0, 1.0)
@@ -192,7 +206,7 @@ class RealisticSensor:
             amp = AMP_MAX
         else:
             amp = max(0, min(AMP_SIGNAL_MAX, round(amp_f)))
-        if amp < AMP_WEAK:
+        if amp < amp_threshold or amp == 0:
             return RawReading(0, amp)
         sigma = self.sigma_of(truth, amp)
         d = truth.distance_m + rng.gauss(0.0, sigma)

@@ -10,6 +10,11 @@ Fault injection for tests and soak runs: garbage bytes, corrupted checksums, a p
 (sensor silent) and unplug/replug (close the pty, make a new one behind the same
 symlink). Bytes the host does not read pile up in a bounded out-buffer; past it, new
 frames are dropped and counted, as a UART drops what nobody reads.
+
+The link is only ever a symlink this device made: an existing file or folder at its
+path is refused, never replaced or removed. If the device thread dies, ``close``
+raises ``DeviceError`` with the cause, so a sensor that went mute is not mistaken
+for a clean run.
 """
 
 from __future__ import annotations
@@ -29,7 +34,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Protocol, TextIO
 
-from lunad.protocol.commands import split_commands
+from lunad.protocol.commands import take_command_frames
 from lunad.protocol.frame import temp_raw_from_c
 from lunad.sim.physics import PaperSensor, RawReading, Truth
 from lunad.sim.scenario import TRUTH_CSV_HEADER, truth_csv_row
@@ -43,9 +48,17 @@ DEFAULT_TEMP_C = 40.0
 
 
 class SensorModel(Protocol):
-    """Anything that draws one reading for a truth (see ``lunad.sim.physics``)."""
+    """Anything that draws one reading for a truth (see ``lunad.sim.physics``).
 
-    def sample(self, truth: Truth, rng: random.Random) -> RawReading: ...
+    ``amp_threshold`` is the sensor's current one (ID 0x22), so that a model draws
+    no noise for a reading below it; ``VirtualSensor.data_frame`` applies it.
+    """
+
+    def sample(self, truth: Truth, rng: random.Random, amp_threshold: int = ...) -> RawReading: ...
+
+
+class DeviceError(RuntimeError):
+    """The device thread died; ``__cause__`` is what killed it."""
 
 
 def default_link() -> Path:
@@ -77,6 +90,9 @@ class PtyDevice:
         on_bytes_written: called from the device thread with (the bytes of one write
             to the pty, the end offsets within them of the good frames it completed,
             ``time.monotonic_ns()``); the soak's reference parser reads every byte.
+        on_error: called from the device thread with the exception that is about to
+            end it (``close`` raises it again as ``DeviceError``); lets a caller
+            waiting on something else stop at once.
 
     Use as a context manager: ``with PtyDevice(...) as dev: serve(dev.path)``.
     """
@@ -95,6 +111,7 @@ class PtyDevice:
         output_enabled: bool = True,
         on_frame_sent: Callable[[int, int], None] | None = None,
         on_bytes_written: Callable[[bytes, list[int], int], None] | None = None,
+        on_error: Callable[[BaseException], None] | None = None,
     ) -> None:
         fixed = truth if isinstance(truth, Truth) else Truth()
         self._truth: Callable[[float], Truth] = truth if callable(truth) else (lambda _t: fixed)
@@ -108,6 +125,10 @@ class PtyDevice:
         self.truth_out = truth_out
         self.on_frame_sent = on_frame_sent
         self.on_bytes_written = on_bytes_written
+        self.on_error = on_error
+        self.error: BaseException | None = None
+        """What killed the device thread, if something did."""
+        self._error_raised = False
         self.frames_sent = 0
         self.frames_corrupted = 0
         self.frames_unread = 0
@@ -150,15 +171,29 @@ class PtyDevice:
         return vmin
 
     def start(self) -> PtyDevice:
-        """Open the pty, make the symlink and start streaming."""
-        self._open_pty()
-        self._t0 = time.monotonic()
-        self._thread = threading.Thread(target=self._run, name="pty-device", daemon=True)
-        self._thread.start()
+        """Open the pty, make the symlink and start streaming.
+
+        Raises:
+            OSError: the pty or the link cannot be made (``FileExistsError`` when
+                ``link`` names something that is not a symlink). Every descriptor
+                is closed again before it propagates.
+        """
+        try:
+            self._open_pty()
+            self._t0 = time.monotonic()
+            self._thread = threading.Thread(target=self._run, name="pty-device", daemon=True)
+            self._thread.start()
+        except BaseException:
+            self.close()
+            raise
         return self
 
     def close(self) -> None:
-        """Stop streaming, close the pty and remove the symlink; safe to call twice."""
+        """Stop streaming, close the pty and remove the symlink; safe to call twice.
+
+        Raises:
+            DeviceError: the device thread had died (once; a second close does not).
+        """
         self._stop = True
         self._wake()
         if self._thread is not None:
@@ -167,9 +202,16 @@ class PtyDevice:
         with self._lock:
             self._close_pty()
         for fd in (self._wake_r, self._wake_w):
-            with contextlib.suppress(OSError):
-                os.close(fd)
+            if fd >= 0:
+                with contextlib.suppress(OSError):
+                    os.close(fd)
         self._wake_r = self._wake_w = -1
+        error = self.error
+        if error is not None and not self._error_raised:
+            self._error_raised = True
+            raise DeviceError(
+                f"the virtual sensor stopped: {type(error).__name__}: {error}"
+            ) from error
 
     def __enter__(self) -> PtyDevice:
         return self.start()
@@ -216,6 +258,14 @@ class PtyDevice:
     # -- the device thread -------------------------------------------------
 
     def _run(self) -> None:
+        try:
+            self._loop()
+        except BaseException as exc:
+            self.error = exc
+            if self.on_error is not None:
+                self.on_error(exc)
+
+    def _loop(self) -> None:
         period = 0.0
         next_t = time.monotonic()
         inbuf = bytearray()
@@ -261,8 +311,9 @@ class PtyDevice:
     def _emit_frame(self) -> None:
         t = time.monotonic() - self._t0
         truth = self._truth(t)
-        reading = self.model.sample(truth, self.rng)
-        frame = self.sensor.data_frame(reading.dist_cm, reading.amp, self.temp_raw)
+        reading = self.model.sample(truth, self.rng, self.sensor.settings.amp_threshold)
+        dist_cm = reading.dist_cm or None  # RawReading: 0 means no distance
+        frame = self.sensor.data_frame(dist_cm, reading.amp, self.temp_raw)
         if frame is None:
             return
         if self._corrupt_next or (self.corrupt_rate and self.rng.random() < self.corrupt_rate):
@@ -295,9 +346,9 @@ class PtyDevice:
         except OSError:
             return
         inbuf += data
-        for cmd_id, payload in split_commands(inbuf):
+        for frame in take_command_frames(inbuf):
             self.commands_received += 1
-            self._out += self.sensor.handle(cmd_id, payload)
+            self._out += self.sensor.handle_frame(frame)
 
     def _flush(self, master: int) -> None:
         if self._inject and not self._out:
@@ -333,6 +384,10 @@ class PtyDevice:
         os.set_blocking(master, False)
         self._master, self._slave = master, slave
         self._slave_name = os.ttyname(slave)
+        if os.path.lexists(self.link) and not self.link.is_symlink():
+            raise FileExistsError(
+                errno.EEXIST, "exists and is not a symlink; refusing to replace it", str(self.link)
+            )
         self.link.parent.mkdir(parents=True, exist_ok=True)
         tmp = self.link.with_name(f".{self.link.name}.{os.getpid()}.tmp")
         with contextlib.suppress(FileNotFoundError):

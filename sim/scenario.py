@@ -46,16 +46,19 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from lunad.protocol.commands import FRAME_RATES_HZ
 from lunad.sim.physics import Truth
 
 DEFAULT_RATE_HZ = 250.0  # the TF-Luna's fastest frame rate, M05 p.9
 FIELDS = ("distance_m", "reflectivity", "angle_deg", "lux")
-_LIMITS = {
+FIELD_LIMITS: dict[str, tuple[float, float]] = {
     "distance_m": (0.01, 100.0),
     "reflectivity": (0.0, 10.0),
     "angle_deg": (0.0, 90.0),
     "lux": (0.0, 200_000.0),
 }
+"""Allowed range of each truth field, inclusive, in its unit (metres, 0..1 and up to
+10 for retroreflectors, degrees, lux); ``lunad sim``'s truth flags use the same."""
 _TOP_KEYS = {"name", "description", "rate_hz", "duration_s", "initial", "keyframe", "step"}
 _INTERP = ("linear", "hold")
 
@@ -178,6 +181,11 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
             text = path.read_text(encoding="utf-8")
         except OSError as exc:
             raise ScenarioError(f"cannot read scenario file {text_path}: {exc}") from exc
+        except UnicodeDecodeError as exc:
+            raise ScenarioError(
+                f"cannot read scenario file {text_path}: not UTF-8 text (TOML must be): "
+                f"byte 0x{exc.object[exc.start]:02x} at offset {exc.start}"
+            ) from exc
         return parse_scenario(text, name=path.stem, source=text_path)
     names = builtin_scenarios()
     if text_path not in names:
@@ -199,7 +207,7 @@ def _number(where: str, key: str, value: Any) -> float:
 
 def _field_value(where: str, key: str, value: Any) -> float:
     v = _number(where, key, value)
-    lo, hi = _LIMITS[key]
+    lo, hi = FIELD_LIMITS[key]
     if not lo <= v <= hi:
         raise ScenarioError(f"{where}: {key} must be within [{lo}, {hi}], got {v}")
     return v
@@ -221,8 +229,11 @@ def parse_scenario(text: str, name: str = "scenario", source: str = "<string>") 
             f"{source}: unknown key(s) {sorted(unknown)}; allowed: {sorted(_TOP_KEYS)}"
         )
     rate = _number(source, "rate_hz", doc.get("rate_hz", DEFAULT_RATE_HZ))
-    if not 0 < rate <= 500:
-        raise ScenarioError(f"{source}: rate_hz must be within (0, 500], got {rate}")
+    if not (rate.is_integer() and int(rate) in FRAME_RATES_HZ and rate > 0):
+        raise ScenarioError(
+            f"{source}: rate_hz must be a frame rate the sensor runs at, 500/n Hz "
+            f"(250, 166, 125, 100, 83, ..., 2, 1; M05 p.15), got {rate:g}"
+        )
     initial = doc.get("initial", {})
     if not isinstance(initial, dict):
         raise ScenarioError(f"{source}: [initial] must be a table")
@@ -244,6 +255,11 @@ def parse_scenario(text: str, name: str = "scenario", source: str = "<string>") 
             raise ScenarioError(f"{source}: use [[{kind}]] (an array of tables)")
         for i, entry in enumerate(entries):
             where = f"{source} [[{kind}]] #{i + 1}"
+            if not isinstance(entry, dict):
+                raise ScenarioError(
+                    f"{where}: must be a table (a [[{kind}]] header and key = value lines), "
+                    f"got {entry!r}"
+                )
             if "t_s" not in entry:
                 raise ScenarioError(f"{where}: t_s (seconds) is required")
             t = _number(where, "t_s", entry["t_s"])

@@ -5,6 +5,11 @@ bytes the sensor would send back, with valid checksums (TFLUNA.md 2.2-2.3): an e
 for settings, a status byte for reset/save/restore, a data frame for a trigger.
 Settings change at once and survive a soft reset only after a save (M05 p.13).
 Unknown IDs get no answer (the manual does not document one; TFLUNA.md 2.2).
+
+Inbound checksums: the sensor accepts any checksum byte until the host turns checking
+on with ID 0x08 (TFLUNA.md 2.1, M05 p.13). After that a command with a wrong checksum
+is not carried out. What the sensor sends back for it is undocumented (TFLUNA.md 2.2
+notes and section 9), so, as for an unknown ID, the virtual sensor sends nothing.
 """
 
 from __future__ import annotations
@@ -14,7 +19,7 @@ from dataclasses import dataclass, replace
 
 from lunad.protocol import commands
 from lunad.protocol.commands import CommandId
-from lunad.protocol.frame import OutputFormat, encode_frame
+from lunad.protocol.frame import OutputFormat, checksum, encode_frame
 
 DEFAULT_RATE_HZ = 100  # M05 p.9
 FIRMWARE = (3, 0, 9)  # major, minor, revision: a real unit's version (TFLUNA.md 2.3)
@@ -46,6 +51,19 @@ class VirtualSensor:
         self.settings = self.saved
         self.trigger_pending = 0
         self.resets = 0
+        self.bad_checksums = 0
+        """Commands ignored for a wrong checksum while checking was on."""
+
+    def handle_frame(self, frame: bytes) -> bytes:
+        """Apply one whole command frame (``5A Len ID payload CS``); return the reply.
+
+        With checksum checking on (ID 0x08) a frame whose checksum is wrong is
+        ignored and gets no reply (module docstring); otherwise as ``handle``.
+        """
+        if self.settings.checksum_enabled and checksum(frame[:-1]) != frame[-1]:
+            self.bad_checksums += 1
+            return b""
+        return self.handle(frame[2], frame[3:-1])
 
     def handle(self, cmd_id: int, payload: bytes) -> bytes:
         """Apply one command; return the reply bytes (possibly empty).
@@ -108,14 +126,22 @@ class VirtualSensor:
             return b""
         return b""
 
-    def data_frame(self, dist_cm: int, amp: int, temp_raw: int) -> bytes | None:
+    def data_frame(self, dist_cm: int | None, amp: int, temp_raw: int) -> bytes | None:
         """The frame the sensor sends for a measurement, or None when it sends nothing.
 
-        Applies the amp threshold (dummy distance below it, M05 p.16), the distance
-        limits (clamp, or silence, M05 p.32) and the output format (cm or mm).
+        The one place the amp threshold applies (ID 0x22; default 100): below it, or
+        with no distance measured (``dist_cm`` None), the frame carries the dummy
+        distance (M05 p.16, p.30; TFLUNA.md section 4). A threshold lowered below 100
+        therefore reports distances for weaker signals, as the sensor does. Then the
+        distance limits (clamp, or silence, M05 p.32) and the output format (cm or mm).
+
+        Args:
+            dist_cm: measured distance, centimetres, or None for no distance.
+            amp: signal strength, as sent.
+            temp_raw: temperature field, as sent.
         """
         s = self.settings
-        if amp < s.amp_threshold:
+        if dist_cm is None or amp < s.amp_threshold:
             dist_cm = s.dummy_dist_cm
         elif not s.min_dist_cm <= dist_cm <= s.max_dist_cm:
             if s.silence:

@@ -1,11 +1,13 @@
-"""Bad command-line input to demo and sim: one line naming the flag, the project's exit
-code, and nothing started (no virtual sensor, no daemon)."""
+"""Bad command-line input to demo, sim and sweep: one line naming the flag, the project's
+exit code, and nothing started (no virtual sensor, no daemon)."""
 
 from __future__ import annotations
 
 import subprocess
 from pathlib import Path
 from typing import Any
+
+import pytest
 
 from lunad.daemon.errors import EX_CONFIG
 
@@ -35,3 +37,89 @@ def test_sim_truth_out_in_a_missing_directory(tmp_path: Path, helpers: Any) -> N
     assert r.returncode == EX_CONFIG, r.stderr
     assert r.stderr == f"lunad sim: --truth-out: cannot write {out}: No such file or directory\n"
     assert r.stdout == "" and not link.exists()  # the virtual sensor never started
+
+
+def run_lunad(helpers: Any, *args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [*helpers.lunad, *args], capture_output=True, text=True, timeout=60, check=False
+    )
+
+
+@pytest.mark.parametrize(
+    ("flags", "line"),
+    [
+        (["--distance", "nan"], "--distance must be within 0.01..100, got nan"),
+        (["--lux", "inf"], "--lux must be within 0..200000, got inf"),
+        (["--noise-scale", "nan"], "--noise-scale must be positive and finite, got nan"),
+        (["--reflectivity", "nan", "--profile", "paper"], "--reflectivity must be within 0..10"),
+        (["--angle", "95"], "--angle must be within 0..90, got 95.0"),
+    ],
+)
+def test_sim_rejects_truth_flags_out_of_range(
+    tmp_path: Path, helpers: Any, flags: list[str], line: str
+) -> None:
+    """A NaN or infinite truth used to kill the device thread: the sim ran mute, exit 0."""
+    link = tmp_path / "tfluna"
+    r = run_lunad(helpers, "sim", *flags, "--duration", "0.3", "--link", str(link))
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.startswith(f"lunad sim: {line}") and r.stderr.count("\n") == 1
+    assert r.stdout == "" and not link.exists()
+
+
+def test_sim_link_never_replaces_a_file(tmp_path: Path, helpers: Any) -> None:
+    """``--link notes.txt`` used to replace the file with the symlink and delete it at exit."""
+    notes = tmp_path / "notes.txt"
+    notes.write_text("my notes\n")
+    r = run_lunad(helpers, "sim", "--link", str(notes), "--duration", "0.3")
+    assert r.returncode == 2, r.stderr
+    assert r.stderr == (
+        f"lunad sim: --link: cannot make {notes}: "
+        "exists and is not a symlink; refusing to replace it\n"
+    )
+    assert r.stdout == "" and notes.read_text() == "my notes\n"
+
+
+def test_sim_link_where_no_folder_can_be_made(helpers: Any) -> None:
+    r = run_lunad(helpers, "sim", "--link", "/proc/no-such-pid/tfluna", "--duration", "0.3")
+    assert r.returncode == 2, r.stderr
+    assert r.stderr == (
+        "lunad sim: --link: cannot make /proc/no-such-pid/tfluna: No such file or directory\n"
+    )
+
+
+def test_sim_scenario_rate_is_named_as_the_scenario_field(tmp_path: Path, helpers: Any) -> None:
+    """A scenario with rate_hz = 200 was refused with a message about --rate, never given."""
+    scenario = tmp_path / "rate200.toml"
+    scenario.write_text("rate_hz = 200\nduration_s = 1\n")
+    r = run_lunad(helpers, "sim", "--scenario", str(scenario), "--link", str(tmp_path / "x"))
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.startswith(f"lunad sim: --scenario: {scenario}: rate_hz must be")
+    assert "--rate" not in r.stderr
+
+
+def test_sim_exits_non_zero_when_the_device_thread_dies(tmp_path: Path, helpers: Any) -> None:
+    """A reading that overflows (noise scaled by 1e308) kills the device thread; the sim
+    used to stay up mute and exit 0 at the end of --duration."""
+    link = tmp_path / "tfluna"
+    r = run_lunad(
+        helpers,
+        "sim",
+        *("--noise-scale", "1e308", "--lux", "200000", "--reflectivity", "0.06"),
+        *("--duration", "30", "--link", str(link)),
+    )
+    assert r.returncode == 1, r.stderr
+    assert r.stderr == (
+        "lunad sim: the virtual sensor stopped: "
+        "OverflowError: cannot convert float infinity to integer\n"
+    )
+    assert not link.exists()
+
+
+def test_sweep_rejects_a_negative_seed(helpers: Any) -> None:
+    """numpy refuses negative seeds: ``--seed -1`` used to end in a ValueError traceback."""
+    r = run_lunad(helpers, "sweep", "--profile", "paper", "--readings", "10", "--seed", "-1")
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.endswith(
+        "lunad sweep: error: argument --seed: expected a non-negative integer, got -1\n"
+    )
+    assert "Traceback" not in r.stderr and r.stdout == ""

@@ -8,6 +8,7 @@ import math
 import random
 import statistics
 
+import numpy as np
 import pytest
 
 from lunad.sim import physics
@@ -100,3 +101,36 @@ def test_physics_never_imports_the_filters() -> None:
 def test_noise_scale_must_be_positive() -> None:
     with pytest.raises(ValueError, match="noise_scale"):
         RealisticSensor(0.0)
+
+
+@pytest.mark.parametrize(("reflectivity", "angle_deg"), [(0.0499, 0.0), (0.0498, 0.0), (0.1, 60.1)])
+def test_paper_sensor_drops_strength_below_0_05_before_rounding_amp(
+    reflectivity: float, angle_deg: float
+) -> None:
+    """S in [0.04975, 0.05) rounds to amp 100, yet the paper drops S < 0.05 (eq. 1), as
+    the vectorised paper profile does; it used to be reported."""
+    from lunad.sim.paper_model import PAPER_METRES
+
+    truth = Truth(2.0, reflectivity, angle_deg, 0.0)
+    rd = PaperSensor().sample(truth, random.Random(0))
+    assert rd.amp == 100 and rd.dist_cm == 0 and rd.sigma_m is None
+    detect = PAPER_METRES.detect_probability(
+        np.array([0.0]), np.array([reflectivity]), np.array([angle_deg])
+    )
+    assert detect[0] == 0.0
+    assert PaperSensor().sample(Truth(2.0, 0.05, 0.0, 0.0), random.Random(0)).dist_cm > 0
+
+
+@pytest.mark.parametrize("model", [PaperSensor(), quiet()], ids=["paper", "realistic"])
+def test_models_draw_a_distance_down_to_the_amp_threshold_they_are_given(
+    model: PaperSensor | RealisticSensor,
+) -> None:
+    """The sensor's threshold is settable (ID 0x22); below the default 100 a model must
+    still measure, or a lowered threshold would report nothing."""
+    truth = Truth(2.0, 0.04, 0.0, 0.0)  # amp 80
+    weak = model.sample(truth, random.Random(7))
+    assert (weak.dist_cm, weak.amp, weak.sigma_m) == (0, 80, None)
+    lowered = model.sample(truth, random.Random(7), amp_threshold=50)
+    assert lowered.amp == 80 and lowered.sigma_m is not None and 100 <= lowered.dist_cm <= 300
+    assert model.sample(truth, random.Random(7), amp_threshold=80).sigma_m is not None
+    assert model.sample(truth, random.Random(7), amp_threshold=90).sigma_m is None

@@ -93,6 +93,11 @@ def test_step_times_and_frames() -> None:
         ("[[keyframe]]\nt_s = 2.0\nlux = 1.0\n[[keyframe]]\nt_s = 1.0\nlux = 2.0", "time order"),
         ("[[step]]\nt_s = 1.0", "names no field"),
         ("this is not toml", "TOML"),
+        ("keyframe = [1, 2]", r"\[\[keyframe\]\] #1: must be a table"),
+        ('step = ["t_s"]', r"\[\[step\]\] #1: must be a table"),
+        ("rate_hz = 200", "rate_hz must be a frame rate the sensor runs at, 500/n Hz"),
+        ("rate_hz = 100.5", "rate_hz must be a frame rate"),
+        ("rate_hz = 1000", "rate_hz must be a frame rate"),
     ],
 )
 def test_bad_files_name_the_problem(text: str, field: str) -> None:
@@ -141,3 +146,11 @@ def test_truth_stays_within_its_keyframes(
     d = sc.truth_at(t_query).distance_m
     assert min(values) - 1e-9 <= d <= max(values) + 1e-9
     assert sc.truth_at(t + 1.0).distance_m == values[-1]
+
+
+def test_a_file_that_is_not_utf8_is_a_scenario_error(tmp_path: Path) -> None:
+    """A Latin-1 file used to escape load_scenario as UnicodeDecodeError (a traceback)."""
+    path = tmp_path / "latin1.toml"
+    path.write_bytes(b'description = "caf\xe9"\n')
+    with pytest.raises(ScenarioError, match=r"not UTF-8 text .*byte 0xe9 at offset 18"):
+        load_scenario(path)

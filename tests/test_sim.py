@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -12,8 +13,8 @@ import serial
 
 from lunad.protocol import CommandReply, Frame, FrameParser, OutputFormat, commands
 from lunad.protocol.commands import Version, decode_reply
-from lunad.sim.physics import PaperSensor, Truth
-from lunad.sim.pty_device import PtyDevice
+from lunad.sim.physics import PaperSensor, RealisticSensor, Truth
+from lunad.sim.pty_device import DeviceError, PtyDevice
 
 
 def read_for(ser: serial.Serial, seconds: float, parser: FrameParser) -> list[Frame | CommandReply]:
@@ -174,3 +175,112 @@ def test_close_is_idempotent(tmp_path: Path) -> None:
     dev.close()
     dev.close()
     assert not os.path.lexists(tmp_path / "x")
+
+
+def open_fds() -> int:
+    return len(os.listdir("/proc/self/fd"))
+
+
+@pytest.mark.parametrize("kind", ["file", "folder"])
+def test_link_refuses_what_is_not_a_symlink(tmp_path: Path, kind: str) -> None:
+    """``lunad sim --link notes.txt`` used to replace the user's file and delete it at exit."""
+    path = tmp_path / "notes.txt"
+    if kind == "file":
+        path.write_text("my notes\n")
+    else:
+        path.mkdir()
+    before = open_fds()
+    with pytest.raises(FileExistsError, match="not a symlink"):
+        PtyDevice(link=path).start()
+    assert open_fds() == before  # pty pair and wake pipe closed again
+    assert path.is_dir() if kind == "folder" else path.read_text() == "my notes\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
+
+
+def test_failed_start_closes_every_fd() -> None:
+    """Each failed start used to leak the pty pair and the wake pipe (4 fds)."""
+    before = open_fds()
+    for _ in range(3):
+        with pytest.raises(FileNotFoundError), PtyDevice(link="/proc/no-such-pid/tfluna"):
+            pass
+    assert open_fds() == before
+
+
+def test_a_dead_device_thread_is_raised_on_close(tmp_path: Path) -> None:
+    """A NaN truth killed the device thread, and the sensor then went mute unnoticed."""
+    died: list[BaseException] = []
+    ended = threading.Event()
+
+    def on_error(exc: BaseException) -> None:
+        died.append(exc)
+        ended.set()
+
+    dev = PtyDevice(Truth(float("nan")), rate_hz=250, link=tmp_path / "x", on_error=on_error)
+    dev.start()
+    assert ended.wait(10.0), "the device thread did not fail on a NaN distance"
+    with pytest.raises(DeviceError, match="ValueError") as info:
+        dev.close()
+    assert info.value.__cause__ is died[0] is dev.error
+    dev.close()  # reported once; closing again is quiet
+    assert not os.path.lexists(tmp_path / "x")
+
+
+def with_bad_checksum(cmd: bytes) -> bytes:
+    return cmd[:-1] + bytes(((cmd[-1] + 1) & 0xFF,))
+
+
+def test_checksum_checking_ignores_bad_commands(device: Callable[..., PtyDevice]) -> None:
+    """After ID 0x08 a wrong checksum is not obeyed, and gets no reply (TFLUNA.md 2.1, 9)."""
+    dev = device(rate_hz=0)
+    p = FrameParser()
+    with serial.serial_for_url(dev.path, 115200, timeout=0.05, exclusive=True) as ser:
+        ser.write(with_bad_checksum(commands.get_version()))  # by default any CS is accepted
+        read_until(ser, p, lambda it: 0x01 in replies(it))
+        ser.write(commands.set_checksum_enabled(True))
+        read_until(ser, p, lambda it: 0x08 in replies(it))
+        ignored = [
+            commands.set_output_format(OutputFormat.MM),
+            commands.trigger(),
+            commands.set_checksum_enabled(False),
+        ]
+        ser.write(b"".join(with_bad_checksum(c) for c in ignored) + commands.get_version())
+        got = read_until(ser, p, lambda it: 0x01 in replies(it))
+        ser.write(commands.trigger())
+        got += read_until(ser, p, lambda it: len(frames(it)) >= 1)
+        ser.write(commands.get_version())  # any frame of the bad trigger came before this
+        got += read_until(ser, p, lambda it: 0x01 in replies(it))
+    assert set(replies(got)) == {0x01}
+    (frame,) = frames(got)
+    assert frame.fmt is OutputFormat.CM and 150 <= frame.dist <= 250
+    assert dev.sensor.settings.checksum_enabled and dev.sensor.bad_checksums == 3
+
+
+@pytest.mark.parametrize(
+    "model",
+    [PaperSensor(), RealisticSensor(spike_probability=0.0, amp_noise=0.0)],
+    ids=["paper", "realistic"],
+)
+def test_amp_threshold_command_moves_the_weak_signal_cut(
+    device: Callable[..., PtyDevice], model: PaperSensor | RealisticSensor
+) -> None:
+    """ID 0x22: amp below the threshold reports Dummy_Dist, at or above it a distance
+    (M05 p.30, TFLUNA.md section 4); lowered below 100 it used to change nothing."""
+    dev = device(rate_hz=0, truth=Truth(2.0, 0.04, 0.0, 0.0), model=model)  # amp 80
+    p = FrameParser()
+    got: list[Frame] = []
+
+    def triggered() -> Frame:
+        ser.write(commands.trigger())
+        got.extend(frames(read_until(ser, p, lambda it: len(frames(it)) >= 1)))
+        return got[-1]
+
+    with serial.serial_for_url(dev.path, 115200, timeout=0.05, exclusive=True) as ser:
+        assert triggered()[:2] == (0, 80)  # the default threshold, 100
+        ser.write(commands.set_amp_threshold(50))
+        read_until(ser, p, lambda it: 0x22 in replies(it))
+        lowered = triggered()
+        ser.write(commands.set_amp_threshold(300, 500))
+        read_until(ser, p, lambda it: 0x22 in replies(it))
+        raised = triggered()
+    assert lowered.amp == 80 and 100 <= lowered.dist <= 300
+    assert raised[:2] == (500, 80)
