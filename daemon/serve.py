@@ -106,6 +106,9 @@ class Daemon:
         """``publish_hz``: the latest frame's estimate, until a publish time sends it."""
         self._batched: Source | None = None
         """``publish_hz``: the source holding its reads until a message's frames came."""
+        self._batches: Source | None = None
+        """``publish_hz``: the source that took a batch; after a stall, it batches again
+        at the first read that brings frames."""
         self._batch_stall_ns = 0
         """``publish_hz``: no batch for this long means the sensor paused mid-batch."""
         self._reasons_json: dict[tuple[str, ...], bytes] = {}
@@ -339,8 +342,8 @@ class Daemon:
         is read as it gives readings. Either way the loop filters every frame and
         publishes the last, at most ``publish_hz`` times a second. When no batch has
         come for twice the time one takes (the sensor paused mid-batch), batching is
-        switched off, so that the frames short of it are read; it comes back once
-        frames flow again.
+        switched off, so that the frames short of it are read, at the next publish
+        time; it comes back with the first read after that which brings frames.
 
         Except on the publish-time schedule, a message is due by its read's own time
         (``Chunk.t_mono_ns``): a replay's recorded one, so that it folds the frames as
@@ -371,13 +374,7 @@ class Daemon:
             and self._version_deadline is None
             and monotonic_ns() - self._last_bytes < period
         ):
-            self._unbatch()
-            frames = min(-(-period // spacing), max(1, self._waiting_after_ns // 2 // spacing))
-            held = src.batch(DATA_FRAME_LEN * frames)
-            if held:
-                self._batched = src
-                self._batch_stall_ns = 2 * spacing * -(-held // DATA_FRAME_LEN)
-                batched = True
+            batched = self._batch(src)
         ticking = not batched and src.buffers
         while not (self._stopping or self._reload_requested):
             if pub.pending:
@@ -436,9 +433,26 @@ class Daemon:
                 health.state is not _CONNECTED or self._version_deadline is not None
             ):
                 break
+            if ticking and chunk is not None and self._batches is src:
+                batched = self._batch(src)
+                ticking = not batched
             if now >= until_ns:
                 break
         return got
+
+    def _batch(self, src: Source) -> bool:
+        """Have ``src`` hold reads until a message's worth of frames has come (at most
+        half the time after which the sensor counts as silent); True when it does."""
+        self._unbatch()
+        period = self._publish_period_ns
+        spacing = self._frame_period_ns
+        frames = min(-(-period // spacing), max(1, self._waiting_after_ns // 2 // spacing))
+        held = src.batch(DATA_FRAME_LEN * frames)
+        if not held:
+            return False
+        self._batched = self._batches = src
+        self._batch_stall_ns = 2 * spacing * -(-held // DATA_FRAME_LEN)
+        return True
 
     def _unbatch(self) -> None:
         """Let the source batching reads for ``publish_hz`` return bytes as they come again."""

@@ -47,15 +47,15 @@ def test_close_does_not_wait_for_a_handshake_the_loop_will_never_give(
     endpoint = f"ipc://{tmp_path}/p.sock"
     pub = Publisher(endpoint)
     pumped = _HeldClear()
+    pumped.hold = True  # the waker's first wake-up, whatever stirred the socket, is held
     pub._pumped = pumped
     pub.start_waker(lambda: None)
     ctx = zmq.Context()
     sub = ctx.socket(zmq.SUB)
     try:
-        pumped.hold = True
         sub.connect(endpoint)
         sub.setsockopt(zmq.SUBSCRIBE, b"")
-        assert pumped.clearing.wait(5), "the subscription did not wake the waker"
+        assert pumped.clearing.wait(5), "the socket never woke the waker"
         waker = pub._waker
         assert waker is not None
         pub.close()
