@@ -22,7 +22,13 @@ sensor was set to (--rate), by which a replay spaces the frames of one read. Rep
 through the very parser and filter the daemon uses with `lunad serve --replay FILE`.
 
 Recording while the daemon runs: use `lunad serve --record FILE` instead (a port
-opens exclusively, so the two cannot share it).
+opens exclusively, so the two cannot share it). A file takes one writer at a time:
+one that another `lunad record` or `lunad serve --record` is writing is refused.
+
+Exit codes: 0 when stopped by SIGINT/SIGTERM or --duration; 78 for a bad option,
+config, or --out (not a recording, cannot be created, being recorded already); 74
+when the recording cannot be written any more (disk full, card removed), after one
+line saying why: every chunk recorded before it is kept.
 """
 
 EPILOG = """\
@@ -58,6 +64,7 @@ def run(args: argparse.Namespace) -> int:
     from lunad.daemon.config import load_config
     from lunad.daemon.errors import (
         EX_CONFIG,
+        EX_IOERR,
         ConfigError,
         LunadError,
         SourceLostError,
@@ -94,7 +101,8 @@ def run(args: argparse.Namespace) -> int:
     except (LunadError, OSError, ValueError) as exc:
         print(f"lunad record: --out: {exc}", file=sys.stderr)
         return EX_CONFIG
-    with rec:
+    write_error: OSError | None = None
+    try:
         while not stop.is_set():
             left = None if deadline is None else deadline - time.monotonic()
             if left is not None and left <= 0:
@@ -119,8 +127,23 @@ def run(args: argparse.Namespace) -> int:
                 src = None
                 continue
             if chunk is not None:
-                rec(chunk)
+                try:
+                    rec(chunk)
+                except OSError as exc:
+                    write_error = exc
+                    break
+    finally:
         if src is not None:
             src.close()
+        try:
+            rec.close()
+        except OSError as exc:  # the final fsync: the card went while recording
+            write_error = write_error or exc
+    if write_error is not None:
+        print(
+            f"lunad record: writing {args.out} failed: {write_error} ({rec.records} chunks kept)",
+            file=sys.stderr,
+        )
+        return EX_IOERR
     print(f"recorded {rec.records} chunks, {rec.bytes} bytes to {args.out}")
     return 0

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 import sys
+import tempfile
+from pathlib import Path
 from typing import Any
 
 DESCRIPTION = """\
@@ -59,6 +61,18 @@ def add_parser(sub: Any) -> None:
     p.set_defaults(func=run)
 
 
+def _check_keep_logs(path: Path) -> None:
+    """Create ``path`` and write a file in it now, so that a folder which cannot hold the
+    logs is a bad option before anything starts, not a failure after the soak.
+
+    Raises:
+        OSError: it cannot be created (a file in the way) or written.
+    """
+    path.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryFile(dir=path):
+        pass
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the soak and print the report; 0 on PASS, 1 on FAIL, 2 on a bad option."""
     import json
@@ -77,6 +91,13 @@ def run(args: argparse.Namespace) -> int:
             "lunad soak: --rate: must be 500/n Hz and at least 10 (e.g. 100, 250)", file=sys.stderr
         )
         return 2
+    keep_logs = getattr(args, "keep_logs", None)
+    if keep_logs:
+        try:
+            _check_keep_logs(Path(keep_logs))
+        except OSError as exc:
+            print(f"lunad soak: --keep-logs: {exc}", file=sys.stderr)
+            return 2
     fmt = getattr(args, "format", "table")
     text = soak.format_schedule(schedule, args.seed, duration, args.rate)
     print(text, file=sys.stderr if fmt == "json" else sys.stdout, flush=True)
@@ -89,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed,
         rate_hz=args.rate,
         progress=progress if getattr(args, "progress", False) else None,
-        keep_logs=getattr(args, "keep_logs", None),
+        keep_logs=keep_logs,
         schedule=schedule,
     ).run()
     if fmt == "json":

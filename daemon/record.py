@@ -11,10 +11,17 @@ Power cuts are expected on a robot: a record is written with one ``write`` call,
 leaves at most one torn record at the end. The reader stops quietly before it (counted in
 ``torn_records``); opening the file for append truncates it first. The format table is in
 ``Recorder``'s docstring.
+
+One file takes one writer: a ``Recorder`` holds an exclusive ``flock`` on its file until it
+is closed, and a second one (another ``lunad record``, or ``lunad serve --record`` on the
+same file) is refused. Two writers appending at their own offsets would overwrite and cut
+short each other's records while both reported success. Readers take no lock.
 """
 
 from __future__ import annotations
 
+import errno
+import fcntl
 import io
 import logging
 import math
@@ -59,7 +66,16 @@ class _ReadableFile(Protocol):
 
 
 class RecordFormatError(LunadError, ValueError):
-    """The file is not a lunad recording this version can read; the message names it."""
+    """The file is not a lunad recording this version can read or append to; the message
+    names it."""
+
+
+class RecordingBusyError(RecordFormatError):
+    """Another ``Recorder`` (usually in another process) is writing to the file.
+
+    A ``RecordFormatError`` so that every caller which refuses a file it cannot record to
+    refuses this one the same way (``lunad serve --record``: exit 78).
+    """
 
 
 class _TornHeaderError(RecordFormatError):
@@ -167,6 +183,31 @@ def _records(f: _ReadableFile, state: _ScanState) -> Iterator[Chunk]:
         return
 
 
+_NO_LOCKS = (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS)
+"""``flock`` errors of a filesystem without locks (some FUSE and network ones)."""
+
+
+def _lock(f: io.FileIO, path: Path) -> None:
+    """Take the writer's lock on ``f``; it holds until ``f`` is closed.
+
+    A filesystem without locks gets a warning and no lock: recording there is what lunad
+    did before it locked, and refusing it would lose the recording.
+
+    Raises:
+        RecordingBusyError: another open file holds the lock.
+    """
+    try:
+        fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        raise RecordingBusyError(
+            f"{path}: is being recorded by another process (or already by this one)"
+        ) from None
+    except OSError as exc:
+        if exc.errno not in _NO_LOCKS:
+            raise
+        log.warning("%s: cannot lock it (%s); recording without the lock", path, exc.strerror)
+
+
 def _fsync_dir(path: Path) -> None:
     """Make a new file's directory entry durable (its data fsync does not cover it)."""
     try:
@@ -210,7 +251,9 @@ class Recorder:
     a torn last record (left by a power cut; logged) and appends after the last good
     one; the header keeps the first session's version, description, creation time and
     frame rate. Records appended after a reboot restart the monotonic clock, so
-    ``t_mono_ns`` may step back; ``paced`` treats that as no gap.
+    ``t_mono_ns`` may step back; ``paced`` treats that as no gap. The recorder holds an
+    exclusive ``flock`` on the file until ``close``: a second writer is refused before
+    it reads or changes anything.
 
     Durability: each record is one unbuffered ``write``, so a crash of the process loses
     nothing already passed to the recorder. ``fsync`` runs at most once per
@@ -229,7 +272,8 @@ class Recorder:
         fsync_interval_s: seconds between fsyncs; 0 syncs every record.
 
     Raises:
-        RecordFormatError: ``path`` exists and is not a recording this version writes.
+        RecordFormatError: ``path`` exists and is not a recording this version writes;
+            its subclass ``RecordingBusyError`` when another recorder holds the file.
         ValueError: ``source_desc`` is longer than 1024 bytes in UTF-8.
         OSError: the file cannot be opened or written.
     """
@@ -261,12 +305,13 @@ class Recorder:
         except FileExistsError:
             self._file = self._open_existing(source_desc)
         else:
-            self._file = f
             try:
+                _lock(f, self.path)
                 self._write_header(f, source_desc)
             except BaseException:
                 f.close()
                 raise
+            self._file = f
         self._last_sync = time.monotonic()
 
     def _write_header(self, f: io.FileIO, source_desc: str) -> None:
@@ -280,6 +325,7 @@ class Recorder:
     def _open_existing(self, source_desc: str) -> io.FileIO:
         f = open(self.path, "r+b", buffering=0)
         try:
+            _lock(f, self.path)
             try:
                 _read_header(f, self.path)
             except _TornHeaderError:

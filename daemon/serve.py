@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import signal
 import time
 from collections.abc import Callable
@@ -66,6 +67,14 @@ RETRY_LOG_EVERY_S = 60.0  # while a device stays absent, remind the log this oft
 NS = 1_000_000_000
 _CONNECTED = State.CONNECTED
 _DROPOUT = Status.DROPOUT
+
+
+def _same_file(a: str | os.PathLike[str], b: str | os.PathLike[str]) -> bool:
+    """True when both paths name one existing file (a symlink, ``./x`` and ``x``)."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
 
 
 class Daemon:
@@ -742,7 +751,11 @@ class Daemon:
             if getattr(new, name) != getattr(old, name)
         ]
         recorder = self.recorder
-        if new.source.record != old.source.record or (recorder is None and new.source.record):
+        wanted = new.source.record
+        moved = wanted != old.source.record and not (
+            recorder is not None and wanted is not None and _same_file(wanted, recorder.path)
+        )
+        if moved or (recorder is None and wanted):
             try:
                 recorder = self._new_recorder(new)
             except ConfigError as exc:

@@ -208,9 +208,12 @@ def build_schedule(duration_s: float, seed: int) -> list[Fault]:
     """The seeded fault schedule of a soak of ``duration_s`` seconds.
 
     Rounds of every fault type in a shuffled order, separated by gaps, until the
-    duration is filled; the first round always fits, so a short soak still exercises
-    every type once. ``slow_subscriber`` opens each round and its resume is placed in a
-    gap after its stall, so its stall overlaps the round's sensor faults.
+    duration is filled. ``slow_subscriber`` opens each round and its resume is placed in
+    a gap after its stall, so its stall overlaps the round's sensor faults. Soaks up to
+    ``SHORT_SOAK_S`` get one round of the short form (short faults, gaps of 0.5-1 s: 47 s
+    at most, so it fits the shortest soak). A longer soak whose first long-form round
+    (often 120-160 s) would not end 2 s before its end gets that short round instead, so
+    every fault ends within the soak and every type is still exercised once.
 
     Raises:
         ValueError: the duration is too short for one round.
@@ -219,8 +222,19 @@ def build_schedule(duration_s: float, seed: int) -> list[Fault]:
         raise ValueError(
             f"a soak needs at least {MIN_DURATION_S:.0f} s to exercise every fault once"
         )
+    if duration_s > SHORT_SOAK_S:
+        faults = _rounds(duration_s, seed, short=False)
+        if faults is not None:
+            return faults
+    faults = _rounds(duration_s, seed, short=True)
+    assert faults is not None  # a short round always fits (46.5 s at most, in 50 s)
+    return faults
+
+
+def _rounds(duration_s: float, seed: int, short: bool) -> list[Fault] | None:
+    """``build_schedule``'s rounds in the short or long form; None when even the first
+    round does not end 2 s before ``duration_s``."""
     rng = random.Random(seed)
-    short = duration_s <= SHORT_SOAK_S
     end = duration_s - 2.0
     faults: list[Fault] = []
     cursor = 2.0
@@ -250,7 +264,9 @@ def build_schedule(duration_s: float, seed: int) -> list[Fault]:
             round(resume_at - slow_at, 1),
             {**sparams, "resume_at_s": round(resume_at, 1)},
         )
-        if cursor > end and not first:
+        if cursor > end:
+            if first:
+                return None
             break
         faults.append(slow)
         faults.extend(round_faults)
@@ -1209,39 +1225,55 @@ class Soak:
     # -- the run --
 
     def run(self) -> SoakReport:
-        """Start everything, drive the schedule, stop, judge."""
+        """Start everything, drive the schedule, stop, judge.
+
+        The temporary folder (pty link, socket, config, log) is removed however this
+        ends, a failed start included.
+        """
         self.work = Path(tempfile.mkdtemp(prefix="lunad-soak-"))
+        try:
+            return self._run()
+        finally:
+            shutil.rmtree(self.work, ignore_errors=True)
+
+    def _run(self) -> SoakReport:
         self.link = self.work / "tfluna"
         self.endpoint = f"ipc://{self.work}/soak.sock"
         self.config = self.work / "soak.toml"
         self.log_path = self.work / "daemon.log"
         on_written = self.ledger.on_written
-        if self.keep_logs is not None:
-            self.keep_logs.mkdir(parents=True, exist_ok=True)
-            for name in (DAEMON_INPUT, SENSOR_OUTPUT):
-                (self.keep_logs / name).unlink(missing_ok=True)
-            self._sensor_rec = Recorder(self.keep_logs / SENSOR_OUTPUT, "soak: sensor writes")
-            on_written = self._record_written
-        self.config.write_text(self._config_text())
         rep = self.report
-        self.dev = PtyDevice(
-            rate_hz=self.rate_hz,
-            link=self.link,
-            seed=self.seed,
-            output_enabled=False,
-            on_bytes_written=on_written,
-        )
-        self.dev.pause(1e9)  # until the subscription is live: seq 0 must arrive
-        self.dev.start()
-        self.sub = MainSubscriber(self.endpoint, self.ledger)
-        self.sub.start()
-        log_file = open(self.log_path, "wb")  # closed in finally
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "lunad.daemon.cli", "serve", "--config", str(self.config)],
-            stdout=log_file,
-            stderr=subprocess.STDOUT,
-            env={**os.environ, "PYTHONUNBUFFERED": "1"},
-        )
+        with contextlib.ExitStack() as started:  # undone only if a later step fails
+            if self.keep_logs is not None:
+                self.keep_logs.mkdir(parents=True, exist_ok=True)
+                for name in (DAEMON_INPUT, SENSOR_OUTPUT):
+                    (self.keep_logs / name).unlink(missing_ok=True)
+                rec = Recorder(self.keep_logs / SENSOR_OUTPUT, "soak: sensor writes")
+                self._sensor_rec = rec
+                started.callback(rec.close)
+                on_written = self._record_written
+            self.config.write_text(self._config_text())
+            self.dev = PtyDevice(
+                rate_hz=self.rate_hz,
+                link=self.link,
+                seed=self.seed,
+                output_enabled=False,
+                on_bytes_written=on_written,
+            )
+            started.callback(self.dev.close)
+            self.dev.pause(1e9)  # until the subscription is live: seq 0 must arrive
+            self.dev.start()
+            self.sub = MainSubscriber(self.endpoint, self.ledger)
+            self.sub.start()
+            started.callback(self.sub.close)
+            log_file = started.enter_context(open(self.log_path, "wb"))
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "lunad.daemon.cli", "serve", "--config", str(self.config)],
+                stdout=log_file,
+                stderr=subprocess.STDOUT,
+                env={**os.environ, "PYTHONUNBUFFERED": "1"},
+            )
+            started.pop_all()  # from here the finally below closes them
         rep.daemon_pid = self.proc.pid
         sampler = threading.Thread(target=self._sampler, name="soak-sampler", daemon=True)
         ticker = threading.Thread(target=self._ticker, name="soak-ticker", daemon=True)
@@ -1280,7 +1312,6 @@ class Soak:
             rep.log_tracebacks = self._log_count("Traceback")
             judge(rep)
             self._keep()
-            shutil.rmtree(self.work, ignore_errors=True)
         return rep
 
     def _record_written(self, data: bytes, ends: list[int], t_ns: int = 0) -> None:

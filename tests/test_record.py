@@ -21,6 +21,7 @@ from lunad.daemon.record import (
     Pacer,
     Recorder,
     RecordFormatError,
+    RecordingBusyError,
     Replay,
     paced,
 )
@@ -100,6 +101,38 @@ def test_recorder_rejects_misuse(tmp_path: Path) -> None:
         rec(Chunk(b"x", 0))
     with pytest.raises(ValueError, match="source_desc"):
         Recorder(tmp_path / "n.lunarec", "x" * 2000)
+
+
+def test_one_writer_at_a_time(tmp_path: Path) -> None:
+    """Two recorders on one file (``lunad record`` beside ``serve --record``) each
+    appended at their own offset, overwriting and cutting short the other's records.
+    The second is refused before it touches the file, even a tail that looks torn
+    because the first is in the middle of a write; readers need no lock."""
+    path = tmp_path / "one.lunarec"
+    with Recorder(path, "first") as first:
+        first(CHUNKS[0])
+        with open(path, "ab") as f:
+            f.write(b"\x00" * 5)  # the first recorder's next record, partly written
+        before = path.read_bytes()
+        with pytest.raises(RecordingBusyError, match="being recorded by another process"):
+            Recorder(path, "second")
+        with pytest.raises(RecordFormatError):  # the type callers already refuse
+            Recorder(path, "second")
+        assert path.read_bytes() == before
+        assert read_all(path) == ([CHUNKS[0]], 1)
+    with Recorder(path, "later") as later:  # close released it
+        assert later.truncated_bytes == 5
+        later(CHUNKS[1])
+    assert read_all(path) == (CHUNKS[:2], 0)
+
+
+def test_a_new_file_is_locked_from_its_creation(tmp_path: Path) -> None:
+    path = tmp_path / "new.lunarec"
+    with Recorder(path, "first") as first:
+        with pytest.raises(RecordingBusyError):
+            Recorder(path, "second")
+        first(CHUNKS[0])
+    assert read_all(path) == ([CHUNKS[0]], 0)
 
 
 # --- power cuts and corruption ------------------------------------------------------

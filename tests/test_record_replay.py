@@ -259,3 +259,99 @@ def test_a_full_disk_ends_the_recording_not_the_daemon(
     assert "serving goes on" in d.log and "Traceback" not in d.log
     recorded = b"".join(c.data for c in Replay(rec))
     assert 0 < len(recorded) < 16384 and after.seq > len(recorded) // 9
+
+
+def test_a_file_being_recorded_is_refused_by_record_and_serve(
+    device: Callable[..., PtyDevice], tmp_path: Path, endpoint: str, helpers: Any
+) -> None:
+    """This test process holds the recording, as a running ``lunad record`` would. A
+    second writer used to append beside it, both reporting success while they overwrote
+    each other's records; now ``lunad record`` and ``lunad serve --record`` refuse it at
+    start with one line and exit 78, and the file is untouched."""
+    from lunad.daemon.record import Recorder
+    from lunad.daemon.source import Chunk
+
+    dev = device(rate_hz=100, output_enabled=False)
+    rec = tmp_path / "busy.lunarec"
+    with Recorder(rec, "the first writer") as holder:
+        holder(Chunk(b"first", 1))
+        before = rec.read_bytes()
+        commands = (
+            ["record", "--device", dev.path, "--out", str(rec), "--duration", "5"],
+            ["serve", "--device", dev.path, "--publish", endpoint, "--record", str(rec)],
+        )
+        for args in commands:
+            r = subprocess.run([*helpers.lunad, *args], capture_output=True, text=True, timeout=30)
+            assert r.returncode == 78, r.stderr
+            errors = [line for line in r.stderr.splitlines() if line.startswith("lunad ")]
+            assert len(errors) == 1 and "is being recorded by another process" in errors[0]
+            assert "Traceback" not in r.stderr
+            assert rec.read_bytes() == before
+    assert [c.data for c in Replay(rec)] == [b"first"]
+
+
+def test_lunad_record_stops_with_one_line_when_the_disk_fills(
+    device: Callable[..., PtyDevice], tmp_path: Path, helpers: Any
+) -> None:
+    """A 4 KiB file size limit (EFBIG, as a full card gives ENOSPC) fills in about 2 s
+    at 100 Hz: one line naming the file, exit 74 (EX_IOERR), and every chunk written
+    before it replays. It used to end in an OSError traceback, exit 1."""
+    dev = device(rate_hz=100, output_enabled=False)
+    out = tmp_path / "full.lunarec"
+    r = subprocess.run(
+        [*helpers.lunad, "record", "--device", dev.path, "--out", str(out), "--duration", "60"],
+        capture_output=True,
+        text=True,
+        timeout=90,
+        preexec_fn=_file_size_limit(4096),
+    )
+    assert r.returncode == 74, r.stderr
+    assert "Traceback" not in r.stderr
+    last = r.stderr.splitlines()[-1]
+    assert last.startswith(f"lunad record: writing {out} failed: [Errno 27]"), r.stderr
+    kept = int(last.rsplit("(", 1)[1].split()[0])
+    with Replay(out) as rp:
+        assert len(list(rp)) == kept > 10
+
+
+def test_sighup_reopens_a_recording_under_the_lock(
+    device: Callable[..., PtyDevice],
+    start_daemon: Any,
+    endpoint: str,
+    tmp_path: Path,
+    helpers: Any,
+) -> None:
+    """The recorder's lock must not refuse the daemon's own reloads: one that keeps the
+    file keeps its recorder, even under another name (a symlink), and a move to another
+    file and back opens each in turn."""
+    dev = device(rate_hz=100, output_enabled=False)
+    a, b = tmp_path / "a.lunarec", tmp_path / "b.lunarec"
+    link = tmp_path / "link.lunarec"
+    link.symlink_to(a)
+    cfg = tmp_path / "r.toml"
+
+    def config(record: Path, health_s: float) -> str:
+        return (
+            f'[source]\ndevice = "{dev.path}"\nrecord = "{record}"\n'
+            f'[publish]\nendpoint = "{endpoint}"\nhealth_interval_s = {health_s}\n'
+        )
+
+    cfg.write_text(config(a, 1.0))
+    d = start_daemon("--config", str(cfg))
+    with Subscriber(endpoint) as sub:
+        helpers.wait_for(sub, helpers.is_range, timeout=helpers.startup_s)
+        steps = ((a, 0.5), (b, 0.5), (a, 0.5), (link, 1.0))
+        for n, (record, health_s) in enumerate(steps, start=1):
+            cfg.write_text(config(record, health_s))
+            d.proc.send_signal(signal.SIGHUP)
+            deadline = time.monotonic() + 10
+            while d.log.count("configuration reloaded") < n:
+                assert "keeping the running configuration" not in d.log, d.log
+                assert time.monotonic() < deadline, d.log
+                time.sleep(0.05)
+            after = time.monotonic_ns()
+            helpers.wait_for(sub, lambda m, t=after: helpers.is_range(m) and m.t_mono_ns > t, 10)
+    assert d.stop() == 0
+    assert "being recorded" not in d.log and "Traceback" not in d.log
+    assert d.log.count(f"recording every byte read to {a}") == 2
+    assert all(sum(len(c.data) for c in Replay(p)) > 0 for p in (a, b))
