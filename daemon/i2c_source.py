@@ -7,20 +7,30 @@ current TICK. Then, per sample, as a small state machine driven by ``_read``::
 
     TRIGGER  write TRIG_ONE_SHOT (0x24 = 1)                  -> READ after the settle
     READ     one 8-byte block read from 0x00: dist, amp, temp, tick (TFLUNA.md 3.3)
-             tick changed    -> one UART data frame out      -> TRIGGER at the next slot
+             tick moved on   -> one UART data frame out      -> TRIGGER at the next slot
              tick unchanged  -> stale: count it              -> TRIGGER again in 5 ms
              5 stale in a row (ESPHome's hung-sensor rule)   -> REBOOT
+             tick went back  -> restarted? drop the sample   -> MODE, checked
     REBOOT   write SHUTDOWN_REBOOT (0x21 = 2)                -> MODE after 1 s
     MODE     write MODE = trigger, read TICK (a reboot restores MODE = continuous,
              as we never save it: no flash writes)           -> TRIGGER
+             checked: read MODE first; continuous means the sensor restarted by
+             itself (a brown-out): count it in ``restarts``
+
+A sensor that restarts by itself comes back in continuous mode, where TRIG_ONE_SHOT is
+ignored (TFLUNA.md 3.2) and an untimed read can catch the registers mid-update (M05 p.14,
+TFLUNA.md 3.3). It NACKs while it boots, so a failed TRIGGER or READ resumes at MODE,
+checked; one that restarted between two reads shows as TICK going back (its counter
+starts again at boot). Neither costs a transfer on a sample that goes well.
 
 Waits (frame pacing on an absolute schedule, the settle, retries, the reboot) are
 ``Wakeup`` (self-pipe) waits bounded by the caller's timeout, so ``cancel`` wakes them and
 a ``_read`` never blocks much longer than asked (one transfer, well under 1 ms at
 100 kHz); an unfinished step is picked up by the next ``_read``. Any ``OSError`` from
-a transfer (NACK errno 121, bus timeout, EIO) is counted in ``nacks`` and the step is
-retried with backoff (5 ms doubling to 200 ms); after 2 s without a good read the
-source raises ``SourceLostError`` and the daemon reopens it with its own backoff.
+a transfer (NACK errno 121, bus timeout, EIO) is counted in ``nacks`` and retried with
+backoff (5 ms doubling to 200 ms), a failed TRIGGER or READ from MODE (above); after 2 s
+without a good read the source raises ``SourceLostError`` and the daemon reopens it with
+its own backoff.
 
 Each sample leaves as a 9-byte UART data frame (``encode_frame``), the temperature
 converted from 0.01 degC (I2C, M05 p.34) to the UART's raw/8 - 256 (M05 p.24), so the
@@ -80,6 +90,12 @@ keeps ``stale_ticks`` meaning "did not update" rather than "not yet"."""
 
 STALE_RETRY_S = 0.005  # after an unchanged TICK, trigger again this much later (ESPHome)
 STALE_REBOOT_AFTER = 5  # consecutive unchanged TICKs that mean a hung sensor (ESPHome)
+TICK_BACK_MIN = 0x8000  # a TICK step this large, modulo 2**16, is a step back
+TICK_BACK_WITHIN_S = 30.0
+"""Judge a TICK step back only this soon after the last TICK. Drivers treat TICK as
+milliseconds (TFLUNA.md 3.2), so it wraps every 65.5 s: within 32.8 s a step of half the
+range cannot be a forward one, later it can (on-demand sampling, output paused). A wrong
+guess costs one sample and a MODE check, not a fault: MODE still reads trigger."""
 BACKOFF_FIRST_S = 0.005  # first retry after a failed transfer ...
 BACKOFF_MAX_S = 0.2  # ... doubling up to this
 LOST_AFTER_S = 2.0  # transfers failing this long: the sensor is gone (SourceLostError)
@@ -153,6 +169,8 @@ class I2CSource(Source):
         stale_ticks: block reads whose TICK had not changed (no new sample).
         nacks: transfers that failed with ``OSError`` (NACK or bus error), open included.
         reboots: reboots issued to a hung sensor.
+        restarts: restarts the sensor did by itself (brown-out), seen as MODE back to
+            continuous; each time trigger mode was set again.
         version: firmware version read at open.
         signature: the 4 bytes at 0x3C (``b"LUNA"`` on A05 firmware).
 
@@ -181,6 +199,7 @@ class I2CSource(Source):
         self.nacks = 0
         self._last_error: str | None = None
         self.reboots = 0
+        self.restarts = 0
         self.version = Version(0, 0, 0)
         self.signature = b""
         self._rate_hz = rate_hz
@@ -194,6 +213,8 @@ class I2CSource(Source):
         self._next_sample_ns = time.monotonic_ns()  # the pacing schedule
         self._retrying = False  # the current sample is a retry: ignore the schedule
         self._last_tick: int | None = None
+        self._last_tick_ns = 0  # when _last_tick was read
+        self._check_mode = False  # the MODE step reads MODE first: did the sensor restart?
         self._stale_run = 0
         self._failing_since_ns: int | None = None
         self._backoff_s = BACKOFF_FIRST_S
@@ -308,6 +329,8 @@ class I2CSource(Source):
                 self._step = _Step.MODE
                 self._due_ns = now + int(I2C_REBOOT_SETTLE_S * 1e9)
                 return b""
+            if self._check_mode:
+                self._note_restart()
             self._set_trigger_mode()
             self._step = _Step.TRIGGER
             self._due_ns = now
@@ -336,7 +359,20 @@ class I2CSource(Source):
             else:
                 self._due_ns = now + int(STALE_RETRY_S * 1e9)
             return b""
+        if (
+            self._last_tick is not None
+            and (s.tick - self._last_tick) & 0xFFFF >= TICK_BACK_MIN
+            and now - self._last_tick_ns < TICK_BACK_WITHIN_S * 1e9
+        ):
+            log.debug("%s: TICK went back from %d to %d", self, self._last_tick, s.tick)
+            self._step = _Step.MODE
+            self._check_mode = True
+            self._retrying = True
+            self._stale_run = 0
+            self._due_ns = now
+            return b""
         self._last_tick = s.tick
+        self._last_tick_ns = now
         self._stale_run = 0
         self._retrying = False
         self.samples += 1
@@ -351,11 +387,13 @@ class I2CSource(Source):
 
     @property
     def recovered_faults(self) -> tuple[int, str | None]:
-        """Failed transfers retried (``nacks``) plus ``reboots``, and the last fault."""
-        return self.nacks + self.reboots, self._last_error
+        """Failed transfers retried (``nacks``) plus ``reboots`` and ``restarts``, and
+        the last fault."""
+        return self.nacks + self.reboots + self.restarts, self._last_error
 
     def _failed(self, now: int, exc: OSError) -> None:
-        """Count a failed transfer; retry the step (a read restarts at the trigger)."""
+        """Count a failed transfer and retry: a failed trigger or read resumes at MODE,
+        checked, since a sensor that restarted by itself NACKs while it boots."""
         self.nacks += 1
         self._last_error = f"{exc}{_hint(exc)}"
         if self._failing_since_ns is None:
@@ -366,17 +404,33 @@ class I2CSource(Source):
                 f"{exc}{_hint(exc)}"
             ) from exc
         log.debug("%s: transfer failed (%s); retrying in %.3f s", self, exc, self._backoff_s)
-        if self._step is _Step.READ:
-            self._step = _Step.TRIGGER
+        if self._step is _Step.READ or self._step is _Step.TRIGGER:
+            self._step = _Step.MODE
+            self._check_mode = True
         self._retrying = True
         self._due_ns = now + int(self._backoff_s * 1e9)
         self._backoff_s = min(self._backoff_s * 2, BACKOFF_MAX_S)
+
+    def _note_restart(self) -> None:
+        """Read MODE back; continuous means the sensor restarted by itself, as we set
+        trigger mode and never save it. Counted, logged and put on health."""
+        (mode,) = self._block(Register.MODE, 1)
+        self._check_mode = False
+        if mode == Mode.TRIGGER:
+            return
+        self.restarts += 1
+        self._last_error = (
+            f"sensor restarted by itself (MODE read {mode}, not trigger {Mode.TRIGGER:d}; "
+            "a power dip?): trigger mode set again"
+        )
+        log.warning("%s: %s", self, self._last_error)
 
     def _set_trigger_mode(self) -> None:
         """MODE = trigger, and take the current TICK as the one to move on from."""
         self._write(Register.MODE, Mode.TRIGGER)
         lo, hi = self._block(Register.TICK_LOW, TICK_LEN)
         self._last_tick = lo | hi << 8
+        self._last_tick_ns = time.monotonic_ns()
 
     def _block(self, register: int, length: int) -> list[int]:
         bus = self._bus

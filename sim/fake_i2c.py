@@ -15,10 +15,11 @@ trigger mode) and clears a stall; writing 1 to SAVE saves them.
 
 Faults, for tests: ``stall(n)`` (the next n triggers do not update the sample: a hung
 sensor, cured by a reboot), ``nack(n)`` (the next n transfers raise ``OSError`` errno
-121, as smbus2 does for a NACK), ``absent`` (every transfer NACKs) and
+121, as smbus2 does for a NACK), ``absent`` (every transfer NACKs),
 ``reboot_busy_s`` (the sensor NACKs for that long after a reboot; real ones are "not
-accessible during few seconds", TFLUNA.md 3.4). Counters and logs of every call let a
-test assert what went over the bus.
+accessible during few seconds", TFLUNA.md 3.4) and ``brown_out()`` (the same restart,
+unasked, as after a supply dip). Counters and logs of every call let a test assert what
+went over the bus.
 
 Not modelled: ultra-low power (stored, never entered), the data-ready pin, a new
 slave address (stored, never applied), torn reads in continuous mode.
@@ -180,6 +181,15 @@ class FakeSMBus:
         """
         self._stall = n
 
+    def brown_out(self) -> None:
+        """Restart the sensor by itself, as a supply dip does, not through the bus.
+
+        As after SHUTDOWN_REBOOT: the saved settings come back (MODE continuous unless
+        trigger mode was saved), the sample registers clear and the sensor NACKs for
+        ``reboot_busy_s``. Not counted in ``reboots``, which counts the reboots asked for.
+        """
+        self._restart()
+
     def nack(self, n: int) -> None:
         """Make the next ``n`` transfers fail with ``OSError`` errno 121 (NACK)."""
         self._nack = n
@@ -313,6 +323,9 @@ class FakeSMBus:
 
     def _reboot(self) -> None:
         self.reboots += 1
+        self._restart()
+
+    def _restart(self) -> None:
         self._stall = 0
         self.regs[_SETTINGS.start : _SETTINGS.stop] = self._saved
         self.regs[0:SAMPLE_BLOCK_LEN] = bytes(SAMPLE_BLOCK_LEN)

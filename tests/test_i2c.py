@@ -276,6 +276,57 @@ def test_hung_sensor_rebooted_then_trigger_mode_set_again(
     assert fake.mode is Mode.TRIGGER
 
 
+def test_sensor_restarting_by_itself_is_put_back_in_trigger_mode(
+    opener: Callable[..., I2CSource],
+):
+    """A brown-out: the sensor NACKs while it boots and comes back in continuous mode (MODE
+    is never saved), where triggers are ignored and reads can be torn (TFLUNA.md 3.2-3.3).
+    The source sets trigger mode before its next trigger and reads triggered samples."""
+    now = [0.0]  # the fake's clock: it boots when the test says so
+    dev = FakeSMBus(model=FixedModel(), clock=lambda: now[0])
+    src = opener(dev)
+    p = FrameParser()
+    assert len(data_frames(collect(src, p, frames=3))) == 3
+    dev.reboot_busy_s = 1.0
+    dev.brown_out()
+    assert dev.mode is Mode.CONTINUOUS
+    deadline = time.monotonic() + 5.0
+    while dev.nacks_sent < 3:
+        assert src.read(0.05) is None
+        assert time.monotonic() < deadline, "the source did not retry the booting sensor"
+    writes, measured = len(dev.writes), len(dev.history)
+    now[0] += dev.reboot_busy_s  # booted
+
+    got = data_frames(collect(src, p, frames=5))
+    assert len(got) == 5 and dev.mode is Mode.TRIGGER
+    assert dev.writes[writes:] == [SET_TRIGGER_MODE] + [TRIGGER] * 5
+    assert len(dev.history) - measured == 5  # each frame measured on a trigger, none continuous
+    assert src.restarts == 1 and src.reboots == 0 and dev.reboots == 0
+    assert src.nacks == dev.nacks_sent
+    count, last = src.recovered_faults
+    assert count == src.nacks + 1 and last is not None and "restarted by itself" in last
+
+
+def test_sensor_restart_between_reads_seen_by_tick_going_back(opener: Callable[..., I2CSource]):
+    """A restart no transfer saw (no NACK): TICK starts again at boot, so it goes back. The
+    continuous-mode sample is dropped and trigger mode set again."""
+    now = [0.0]
+    dev = FakeSMBus(model=FixedModel(), clock=lambda: now[0], tick=1000)
+    src = opener(dev)
+    p = FrameParser()
+    assert len(data_frames(collect(src, p, frames=3))) == 3
+    dev.brown_out()  # answers at once (reboot_busy_s 0), TICK cleared, continuous mode
+    now[0] += 0.02  # two continuous frame periods: the next sample read refreshes, TICK = 1
+    writes, measured = len(dev.writes), len(dev.history)
+
+    got = data_frames(collect(src, p, frames=5))
+    assert len(got) == 5 and dev.mode is Mode.TRIGGER
+    # the first trigger is ignored and its read (TICK 1003 -> 1) dropped
+    assert dev.writes[writes:] == [TRIGGER, SET_TRIGGER_MODE] + [TRIGGER] * 5
+    assert len(dev.history) - measured == 1 + 5
+    assert src.restarts == 1 and src.nacks == 0 and src.reboots == 0
+
+
 def test_nacks_counted_and_retried(fake: FakeSMBus, opener: Callable[..., I2CSource]):
     src = opener()
     fake.nack(3)
@@ -380,6 +431,25 @@ def test_daemon_reports_a_rebooted_sensor_on_health(fake: FakeSMBus, tmp_path: P
         f"for {i2c_source.STALE_REBOOT_AFTER} reads: sensor hung, rebooted it"
     )
     assert fake.reboots == 1
+
+
+def test_daemon_reports_a_sensor_that_restarted_by_itself_on_health(
+    fake: FakeSMBus, tmp_path: Path
+) -> None:
+    """A brown-out (NACKs, then continuous mode) the source recovers from shows in health."""
+
+    def brown_out() -> None:
+        fake.reboot_busy_s = 0.1
+        fake.brown_out()
+
+    notes = _health_notes_after(fake, tmp_path, brown_out)
+    assert notes, "no health message reported the restart"
+    assert notes[-1].startswith("i2c bus 1 address 0x10: recovered from ")
+    assert notes[-1].endswith(
+        "sensor restarted by itself (MODE read 0, not trigger 1; a power dip?): "
+        "trigger mode set again"
+    )
+    assert fake.mode is Mode.TRIGGER
 
 
 # -- UART command emulation -----------------------------------------------------------------
