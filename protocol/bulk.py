@@ -175,7 +175,8 @@ def decode_bulk(data: bytes | bytearray | memoryview, fmt: int = OutputFormat.CM
         starts, lens, ends = starts[keep], lens[keep], ends[keep]
 
     # frames, replies, counters -------------------------------------------------------
-    is_data = lens == DATA_FRAME_LEN
+    # By header, not by length: a DIST_LIMIT reply is 9 bytes long, like a data frame.
+    is_data = a[starts] == DATA_HEADER_BYTE
     f_starts = starts[is_data]
     r_starts = starts[~is_data]
     r_lens = lens[~is_data]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import struct
+
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -55,6 +57,15 @@ reply = st.sampled_from(
         get_full_version()[:3],  # a cut reply header: 5A 04 14
     ]
 )
+dist_limit_reply = st.builds(
+    lambda lo, hi, silence: encode_reply(
+        CommandId.DIST_LIMIT, struct.pack("<HHB", lo, hi, silence)
+    ),
+    st.integers(0, 0xFFFF),
+    st.integers(0, 0xFFFF),
+    st.integers(0, 1),
+)
+"""9 bytes long like a data frame, so only its ``5A`` header tells it apart."""
 
 
 @st.composite
@@ -70,6 +81,7 @@ piece = st.one_of(
     frame,
     corrupted(),
     reply,
+    dist_limit_reply,
     header_rich.map(bytes),
     st.binary(max_size=10),
 )
@@ -109,3 +121,20 @@ def test_frame_inside_a_long_cut_reply_is_not_held_back() -> None:
     data = b"\x5a\x1e\x14" + b"\x00" * 4 + encode_frame(5, 6, 7) + b"\x00" * 4
     assert_same(data)
     assert len(decode_bulk(data)) == 1
+
+
+def test_dist_limit_reply_between_frames_is_a_reply() -> None:
+    # The DIST_LIMIT echo is 9 bytes, the length of a data frame: bulk decode once took
+    # it for one (a phantom 51.78 m reading, and the reply not counted).
+    data = (
+        encode_frame(123, 1000, 2368)
+        + encode_reply(CommandId.DIST_LIMIT, struct.pack("<HHB", 20, 800, 0))
+        + encode_frame(124, 1000, 2368)
+    )
+    assert_same(data)
+    got = decode_bulk(data)
+    assert got.dist.tolist() == [123, 124]
+    assert got.offset.tolist() == [0, 18]
+    assert got.reply_offsets.tolist() == [9]
+    assert got.reply_ids.tolist() == [CommandId.DIST_LIMIT]
+    assert got.reply_bytes == 9
