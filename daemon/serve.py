@@ -645,6 +645,7 @@ class Daemon:
         self._backoff = BACKOFF_FIRST_S
         self._last_bytes = now
         self._next_publish = 0  # the first read's frames go out: its clock may be a replay's
+        self.health.firmware = None  # until this sensor answers: the port may have another
         self._set_state(State.WAITING, now)
         self._version_deadline = self._configure(now)
 

@@ -150,6 +150,29 @@ def test_unplug_replug_recovers(running: Any, subscriber: Subscriber, helpers: A
     assert "reconnecting" in d.log and "opened serial" in d.log
 
 
+def test_firmware_is_the_sensor_behind_the_port_now(
+    running: Any, subscriber: Subscriber, helpers: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """After a replug the port may hold another sensor: health must not go on showing
+    the old one's firmware, and one that does not answer the version query gets the
+    warning (it was suppressed after any reconnect, since the old firmware was kept)."""
+    dev, d = running(rate_hz=100)
+    before = helpers.wait_for(
+        subscriber, lambda m: isinstance(m, HealthMessage) and m.firmware is not None, 5
+    )
+    assert before.firmware == "3.0.9"
+    dev.unplug()
+    helpers.wait_for(subscriber, helpers.health_state("reconnecting"), timeout=3)
+    monkeypatch.setattr(dev.sensor, "handle_frame", lambda _frame: b"")  # RX wire cut
+    dev.replug()
+    after = helpers.wait_for(subscriber, helpers.health_state("connected"), timeout=5)
+    assert after.firmware is None
+    deadline = time.monotonic() + 5
+    while "did not answer the version query" not in d.log:
+        assert time.monotonic() < deadline, d.log
+        time.sleep(0.05)
+
+
 def test_silent_sensor_reported_waiting(running: Any, subscriber: Subscriber, helpers: Any) -> None:
     """The contract: ``waiting`` within 2 s of the last frame. Timed between the daemon's
     own stamps (the last range message's read time, the health message's decision time),
