@@ -9,9 +9,15 @@ ZeroMQ reconnects a SUB socket by itself, so a daemon restart needs nothing from
 caller. The subscriber checks every ``range`` message's ``seq``, sensor by sensor, and
 counts the messages it missed in ``lost`` (a daemon restart, seen as ``seq`` going back,
 is not a loss; in the daemon's ``--publish-hz`` mode the gaps are frames folded on
-purpose). A message repeating its sensor's last ``seq`` is the daemon's last-value
-cache answering another subscriber's arrival, and is dropped. Messages that do not
-decode are counted in ``bad_messages`` and skipped.
+purpose). A message repeating its sensor's last ``seq``, or a ``health`` message
+repeating its sensor's last one byte for byte, is the daemon's last-value cache
+answering another subscriber's arrival, and is dropped. Messages that do not decode
+are counted in ``bad_messages`` and skipped.
+
+``lost`` is exact within one run of the daemon. A ``range`` message carries no run
+identity (DESIGN.md), so a restart seen only after the new run's ``seq`` has passed
+the last one seen (the old run was shorter than the time the subscriber took to
+reconnect) reads as a gap and is counted.
 """
 
 from __future__ import annotations
@@ -32,6 +38,7 @@ from lunad.protocol.messages import (
     decode,
 )
 
+_HEALTH_PREFIX = f"{HEALTH_TOPIC}/".encode()
 RECONNECT_IVL_MS = 100
 RECONNECT_IVL_MAX_MS = 2000
 
@@ -63,6 +70,7 @@ class Subscriber:
         self.last_seq: int | None = None
         """``seq`` of the last ``range`` message returned, of whichever sensor."""
         self._last_seqs: dict[str, int] = {}
+        self._last_health: dict[bytes, bytes] = {}
         ctx = context or zmq.Context.instance()
         self._sock = ctx.socket(zmq.SUB)
         self._sock.setsockopt(zmq.LINGER, 0)
@@ -91,6 +99,9 @@ class Subscriber:
             topic, payload = parts
             if self.sensor is not None and topic.split(b"/", 1)[-1] != self.sensor.encode():
                 continue
+            health = topic.startswith(_HEALTH_PREFIX)
+            if health and self._last_health.get(topic) == payload:
+                continue
             try:
                 msg = decode(topic, payload)
             except (ValueError, ValidationError):
@@ -98,6 +109,8 @@ class Subscriber:
                 continue
             if isinstance(msg, RangeMessage) and not self._track(msg.sensor, msg.seq):
                 continue
+            if health:
+                self._last_health[topic] = payload
             return msg
 
     def __iter__(self) -> Iterator[Message]:

@@ -33,7 +33,7 @@ State = Literal["connected", "waiting", "reconnecting"]
 class RangeMessage(BaseModel):
     """One parsed data frame, cleaned (topic ``range/<sensor>``). Distances in metres."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     kind: ClassVar[str] = RANGE_TOPIC
 
     v: Literal[1] = 1
@@ -56,7 +56,7 @@ class RangeMessage(BaseModel):
 class HealthMessage(BaseModel):
     """The daemon's state, about once a second and at every change (topic ``health/<sensor>``)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     kind: ClassVar[str] = HEALTH_TOPIC
 
     v: Literal[1] = 1

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import signal
 import subprocess
 import sys
@@ -149,6 +150,46 @@ def test_gaps_restarts_and_bad_messages(tmp_path: Path) -> None:
             assert got == [1, 2, 5, 6, 0, 1]
             assert sub.lost == 2
             assert sub.bad_messages == 1
+    finally:
+        pub.close(linger=0)
+        ctx.term()
+
+
+def test_a_repeated_health_message_is_dropped(tmp_path: Path) -> None:
+    """The daemon's last-value cache sends the cached health to every subscriber when
+    another one subscribes; robot code counting state changes saw each one twice."""
+    from lunad.protocol.messages import HealthMessage, encode_health
+
+    def health(t_unix_ns: int, sensor: str = "c") -> bytes:
+        return encode_health(
+            HealthMessage(
+                sensor=sensor, t_unix_ns=t_unix_ns, state="waiting", frames=0,
+                checksum_errors=0, bytes_discarded=0, fps=0.0, dropout_ratio=0.0,
+                dropped_sends=0, uptime_s=0.0, last_error=None, firmware=None,
+            )
+        )  # fmt: skip
+
+    ep = f"ipc://{tmp_path}/h.sock"
+    ctx = zmq.Context()
+    pub = ctx.socket(zmq.PUB)
+    pub.bind(ep)
+    try:
+        with Subscriber(ep, kinds=["health"]) as sub:
+            deadline = time.monotonic() + 5
+            first = None
+            t = 0
+            while first is None and time.monotonic() < deadline:  # slow-joiner handshake
+                t += 1
+                pub.send_multipart([topic("health", "c"), health(t)])
+                first = sub.recv(timeout_s=0.05)
+            while sub.recv(timeout_s=0.1) is not None:
+                pass
+            for payload in (health(10**9), health(10**9), health(10**9, "d"), health(2 * 10**9)):
+                pub.send_multipart([topic("health", json.loads(payload)["sensor"]), payload])
+            got = []
+            while (m := sub.recv(timeout_s=0.3)) is not None:
+                got.append((m.sensor, m.t_unix_ns))  # type: ignore[union-attr]
+            assert got == [("c", 10**9), ("d", 10**9), ("c", 2 * 10**9)]
     finally:
         pub.close(linger=0)
         ctx.term()

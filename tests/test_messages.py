@@ -111,6 +111,30 @@ def test_schema_rejects_contract_breaks() -> None:
         decode(b"other/s", b"{}")
 
 
+@pytest.mark.parametrize("number", ["NaN", "Infinity", "-Infinity", "1e400"])
+@pytest.mark.parametrize(("kind", "key"), [("range", "range_m"), ("health", "fps")])
+def test_decode_refuses_numbers_that_are_not_finite(kind: str, key: str, number: str) -> None:
+    """``range_m`` is a float or null (DESIGN.md): a NaN or an infinity (``1e400`` is
+    valid JSON and reads as one) handed to robot code as ``ok`` is worse than a message
+    counted as bad."""
+    if kind == "range":
+        payload = encode_range(
+            b'"s"', 0, 1, 2, 1.0, 500, 40.0, 0.25, 1.0, 0.01, 0.0, "ok", b"[]", "stable"
+        )
+    else:
+        payload = encode_health(
+            HealthMessage(
+                sensor="s", t_unix_ns=1, state="connected", frames=3, checksum_errors=0,
+                bytes_discarded=0, fps=100.0, dropout_ratio=0.0, dropped_sends=0,
+                uptime_s=1.0, last_error=None, firmware=None,
+            )
+        )  # fmt: skip
+    d = json.loads(payload)
+    text = json.dumps({**d, key: 12345.5}).replace("12345.5", number)
+    with pytest.raises(ValueError):
+        decode(topic(kind, "s"), text.encode())
+
+
 def test_health_round_trip_has_ros_range_facts() -> None:
     h = HealthMessage(
         sensor="s",
