@@ -10,7 +10,8 @@ A reading z with variance r (from the paper's noise model, eqs 2-3, see lux.py) 
 innovation e = z - x and predicted variance s = P00 + r. If e^2 > g^2 s (g = 4, a
 Gaussian reading fails this once in 16 000) the reading is an outlier and leaves
 the state alone: an isolated multipath spike vanishes. If ``step_confirm``
-consecutive outliers lie on the same side and agree with each other
+consecutive outliers (at most ``RUN_GAP_MAX`` frames that do not feed the filter
+between two of them) lie on the same side and agree with each other
 (|z_i - z_j| within g sqrt(r_i + r_j)), the target really moved (an obstacle
 stepped in): the track restarts at their mean with their variance and a zero
 speed, so a step is followed after ``step_confirm - 1`` frames. Not in the paper,
@@ -21,6 +22,12 @@ more in call overhead than the arithmetic.
 """
 
 from __future__ import annotations
+
+RUN_GAP_MAX = 2
+"""Frames that do not feed the filter (no distance, a weak or saturated signal) that may
+sit between two outliers of one run. A marginal target, weak every other frame, still
+confirms its step; two spikes 0.3 s apart, dropouts between them, are two spikes (they
+once confirmed a step and a range 1.5 m off went out as ``ok``)."""
 
 ACCEPTED = 0
 OUTLIER = 1
@@ -34,6 +41,7 @@ class Tracker:
         "_confirm",
         "_gate2",
         "_qa",
+        "_run_gap",
         "_run_last",
         "_run_n",
         "_run_r",
@@ -76,6 +84,7 @@ class Tracker:
         self._run_last = 0.0
         self._run_r = 0.0
         self._run_sign = False
+        self._run_gap = 0
 
     def start(self, z_m: float, r_m2: float) -> None:
         """Begin a track at reading ``z_m`` (variance ``r_m2``) with unknown speed."""
@@ -87,12 +96,13 @@ class Tracker:
         self.p11 = self._v0var
         self._run_n = 0
 
-    def end_run(self) -> None:
-        """A frame that does not feed the filter (no distance, a weak or saturated
-        signal) came: outliers on either side of it are not consecutive, and must not
-        confirm a step between them (two spikes 0.3 s apart published a range 1.5 m
-        off as ``ok``)."""
-        self._run_n = 0
+    def skip(self) -> None:
+        """A frame that does not feed the filter came: past ``RUN_GAP_MAX`` of them the
+        run of outliers ends."""
+        if self._run_n:
+            self._run_gap += 1
+            if self._run_gap > RUN_GAP_MAX:
+                self._run_n = 0
 
     def predict(self, dt_s: float) -> None:
         """Move the state ``dt_s`` seconds ahead."""
@@ -129,6 +139,7 @@ class Tracker:
                 self._run_sign = sign
             self._run_last = z_m
             self._run_r = r_m2
+            self._run_gap = 0
             if self._run_n >= self._confirm:
                 n = self._run_n
                 self.start(self._run_sum / n, self._run_rsum / (n * n))

@@ -21,6 +21,7 @@ from math import sqrt
 
 from lunad.filters.config import AMP_AMBIENT, AMP_SATURATED, FilterConfig
 from lunad.filters.estimate import Estimate, Reason, Status, Zone
+from lunad.filters.kalman import RUN_GAP_MAX
 from lunad.filters.lux import PRED_SKIP_RATIO, WEIGHT_GROWTH_MAX, LuxConstants
 from lunad.filters.policy import band_edge, first_amp_at_least
 from lunad.filters.zone import ZoneClassifier
@@ -78,6 +79,7 @@ class RangeFilter:
         "_min_m",
         "_q_m2",
         "_qa",
+        "_run_gap",
         "_run_last",
         "_run_n",
         "_run_r",
@@ -152,6 +154,7 @@ class RangeFilter:
         self._run_n = 0
         self._run_sum = self._run_rsum = self._run_last = self._run_r = 0.0
         self._run_sign = False
+        self._run_gap = 0
         self.c2 = self.c2_zone = self._c2_init
         self.lux = self.lux_zone = self._lux_init
         self._lux_dt = float("inf")
@@ -200,6 +203,10 @@ class RangeFilter:
         elif t >= last:
             self._last_t_ns = t
             dt = (t - last) * 1e-9
+        elif last - t > self._stale_ns:  # a clock started again: a recording across a
+            self.reset()  # reboot; start afresh, as the daemon did after it
+            self._last_t_ns = self._last_accept_ns = t
+            dt = 0.0
         else:  # stamped before the last frame: taken as at its time, not counted twice
             t = last
             dt = 0.0
@@ -294,6 +301,7 @@ class RangeFilter:
                         self._run_sign = sign
                     self._run_last = z
                     self._run_r = r
+                    self._run_gap = 0
                     if n >= self._confirm:
                         self._start(self._run_sum / n, self._run_rsum / (n * n))
                         self._last_accept_ns = t
@@ -321,7 +329,11 @@ class RangeFilter:
                 self._start(z, r)
                 self._last_accept_ns = t
         elif active:
-            self._run_n = 0  # kalman.py: Tracker.end_run
+            if self._run_n:  # kalman.py: Tracker.skip
+                gap = self._run_gap + 1
+                self._run_gap = gap
+                if gap > RUN_GAP_MAX:
+                    self._run_n = 0
             if dt > 0.0:
                 self._predict(dt)
 

@@ -105,6 +105,10 @@ class ReferenceFilter:
         elif t >= last:
             self._last_t_ns = t
             dt = (t - last) * 1e-9
+        elif last - t > self._stale_ns:  # a clock started again: a recording across a
+            self.reset()  # reboot; start afresh, as the daemon did after it
+            self._last_t_ns = self._last_accept_ns = t
+            dt = 0.0
         else:  # stamped before the last frame: taken as at its time, not counted twice
             t = last
             dt = 0.0
@@ -127,7 +131,7 @@ class ReferenceFilter:
                 self._last_accept_ns = t
         elif tr.active:
             tr.predict(dt)
-            tr.end_run()
+            tr.skip()
         if not reasons and tr.active:
             x = tr.x
             if self._min_m <= x <= self._max_m:
