@@ -659,8 +659,10 @@ def run_serve_once(
             receiver.kill()
             receiver.wait()
         receiver.stdout.close()
-        dev.close()
-        os.sched_setaffinity(0, old_affinity)
+        try:
+            dev.close()  # raises DeviceError if the virtual sensor died: the run is void
+        finally:
+            os.sched_setaffinity(0, old_affinity)
     idle_window_s = (it1 - it0) / 1e9
     if i0 is not None and i1 is not None:
         idle_cpu_s, idle_wakeups = (i1[0] - i0[0]) / 1e9, float(i1[1] - i0[1])

@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     """Run the demo; 0 when the daemon published every frame the sensor sent."""
     from lunad.daemon.cmd_watch import watch
     from lunad.sim.physics import RealisticSensor
-    from lunad.sim.pty_device import PtyDevice
+    from lunad.sim.pty_device import DeviceError, PtyDevice
     from lunad.sim.scenario import ScenarioError, load_scenario
 
     if args.every < 1:  # watch() divides by it, after the sensor and the daemon are up
@@ -76,43 +76,47 @@ def run(args: argparse.Namespace) -> int:
             garbage_rate=0.02,
             output_enabled=False,
         )
-        with dev:
-            print(
-                f"virtual TF-Luna on {dev.path}: scenario {scenario.name} "
-                f"({scenario.description}), {args.rate} Hz, garbage before 2 % of frames"
-            )
-            cmd = [
-                sys.executable,
-                "-m",
-                "lunad.daemon.cli",
-                "serve",
-                "--device",
-                str(link),
-                "--publish",
-                endpoint,
-                "--name",
-                "demo",
-                "--rate",
-                str(args.rate),
-            ]
-            print("starting: lunad " + " ".join(cmd[3:]), flush=True)
-            daemon = subprocess.Popen(cmd, env={**os.environ, "PYTHONUNBUFFERED": "1"})
-            try:
-                quiet = threading.Timer(max(0.5, args.duration - 0.5), dev.pause, (3600.0,))
-                quiet.start()
-                seen = watch(endpoint, sys.stdout, every=args.every, duration=args.duration)
-                quiet.cancel()
-            finally:
-                daemon.send_signal(signal.SIGTERM)
-                t0 = time.monotonic()
+        try:
+            with dev:
+                print(
+                    f"virtual TF-Luna on {dev.path}: scenario {scenario.name} "
+                    f"({scenario.description}), {args.rate} Hz, garbage before 2 % of frames"
+                )
+                cmd = [
+                    sys.executable,
+                    "-m",
+                    "lunad.daemon.cli",
+                    "serve",
+                    "--device",
+                    str(link),
+                    "--publish",
+                    endpoint,
+                    "--name",
+                    "demo",
+                    "--rate",
+                    str(args.rate),
+                ]
+                print("starting: lunad " + " ".join(cmd[3:]), flush=True)
+                daemon = subprocess.Popen(cmd, env={**os.environ, "PYTHONUNBUFFERED": "1"})
                 try:
-                    code = daemon.wait(timeout=5)
-                except subprocess.TimeoutExpired:
-                    daemon.kill()
-                    code = daemon.wait()
-            stop_s = time.monotonic() - t0
-            sent = dev.frames_sent
-            junk = dev.garbage_bytes
+                    quiet = threading.Timer(max(0.5, args.duration - 0.5), dev.pause, (3600.0,))
+                    quiet.start()
+                    seen = watch(endpoint, sys.stdout, every=args.every, duration=args.duration)
+                    quiet.cancel()
+                finally:
+                    daemon.send_signal(signal.SIGTERM)
+                    t0 = time.monotonic()
+                    try:
+                        code = daemon.wait(timeout=5)
+                    except subprocess.TimeoutExpired:
+                        daemon.kill()
+                        code = daemon.wait()
+                stop_s = time.monotonic() - t0
+                sent = dev.frames_sent
+                junk = dev.garbage_bytes
+        except DeviceError as exc:  # its thread died: the figures below would mean nothing
+            print(f"lunad demo: {exc}", file=sys.stderr)
+            return 1
         published = 0 if seen.last_seq is None else seen.last_seq + 1
         print(
             f"\nThe virtual sensor sent {sent} good frames and {junk} garbage bytes.\n"

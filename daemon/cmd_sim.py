@@ -66,7 +66,13 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--scenario", metavar="NAME|FILE", help="time-varying truth; stops at its end")
     p.add_argument("--loop", action="store_true", help="repeat the scenario instead of stopping")
     p.add_argument("--distance", type=float, default=2.0, metavar="M", help="true distance, m")
-    p.add_argument("--reflectivity", type=float, default=0.9, metavar="R", help="0..1")
+    p.add_argument(
+        "--reflectivity",
+        type=float,
+        default=0.9,
+        metavar="R",
+        help="0..1, up to 10 for a retroreflector",
+    )
     p.add_argument("--angle", type=float, default=0.0, metavar="DEG", help="incidence angle")
     p.add_argument("--lux", type=float, default=0.0, metavar="L", help="ambient light, lux")
     p.add_argument("--seed", type=int, default=0)

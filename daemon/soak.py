@@ -59,7 +59,7 @@ from lunad.daemon.soak_bytes import DAEMON_INPUT, SENSOR_OUTPUT, compare
 from lunad.daemon.source import Chunk
 from lunad.protocol.frame import Frame, encode_frame, temp_raw_from_c
 from lunad.protocol.parser import FrameParser
-from lunad.sim.pty_device import PtyDevice
+from lunad.sim.pty_device import DeviceError, PtyDevice
 
 NS = 1_000_000_000
 SENSOR = "soak"
@@ -844,7 +844,7 @@ def rss_verdict(samples: list[Sample], warmup_s: float) -> dict[str, float]:
 
 
 class DaemonDied(Exception):
-    """The daemon process exited during the soak."""
+    """The soak cannot go on: the daemon process exited, or the virtual sensor stopped."""
 
 
 class Soak:
@@ -899,6 +899,9 @@ class Soak:
         )
 
     def _check_alive(self) -> None:
+        error = self.dev.error
+        if error is not None:  # the soak's own virtual sensor: nothing left to measure
+            raise DaemonDied(f"the virtual sensor stopped: {type(error).__name__}: {error}")
         code = self.proc.poll()
         if code is not None:
             if self.report.daemon_died_at_s is None:
@@ -1302,7 +1305,10 @@ class Soak:
             self._stop_daemon()
             log_file.close()
             self.sub.close()
-            self.dev.close()
+            try:
+                self.dev.close()
+            except DeviceError as exc:  # judged as a FAIL below, with the report and logs kept
+                rep.aborted = rep.aborted or str(exc)
             if self._sensor_rec is not None:
                 self._sensor_rec.close()
                 self._check_bytes()

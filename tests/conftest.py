@@ -18,7 +18,7 @@ from hypothesis import settings
 
 from lunad.protocol.client import Subscriber
 from lunad.protocol.messages import HealthMessage, Message, RangeMessage
-from lunad.sim.pty_device import PtyDevice
+from lunad.sim.pty_device import DeviceError, PtyDevice
 
 settings.register_profile("lunad", deadline=None)
 settings.load_profile("lunad")
@@ -137,8 +137,14 @@ def device(tmp_path: Path) -> Callable[..., PtyDevice]:
         return dev
 
     yield make  # type: ignore[misc]
+    errors = []
     for dev in made:
-        dev.close()
+        try:
+            dev.close()
+        except DeviceError as exc:  # a device thread died: fail the test, after closing all
+            errors.append(exc)
+    if errors:
+        raise errors[0]
 
 
 @pytest.fixture

@@ -4,6 +4,7 @@ parser, the schedule, the frame accounting and the verdict, including that it ca
 from __future__ import annotations
 
 import argparse
+import errno
 import itertools
 import json
 import os
@@ -346,6 +347,33 @@ def test_a_soak_that_cannot_start_removes_its_temporary_folder(
     with pytest.raises(NotADirectoryError):
         soak.Soak(60.0, schedule=[], keep_logs=afile / "logs").run()
     assert list(tmp.iterdir()) == []
+
+
+def test_a_virtual_sensor_that_dies_fails_the_soak_with_its_report(tmp_path: Path) -> None:
+    """The soak's own virtual sensor can die (here its ``--keep-logs`` recording fills
+    the disk, in the device thread). The soak must stop, judge a FAIL that says why,
+    and keep its report and logs; ``PtyDevice.close`` raising ``DeviceError`` in the
+    clean-up used to skip the judging and the logs, after running out its duration."""
+
+    class DiskFills(soak.Soak):
+        writes = 0
+
+        def _record_written(self, data: bytes, ends: list[int], t_ns: int = 0) -> None:
+            DiskFills.writes += 1
+            if DiskFills.writes > 50:
+                raise OSError(errno.ENOSPC, "No space left on device")
+            super()._record_written(data, ends, t_ns)
+
+        def _execute(self) -> None:
+            self._sleep(60.0)
+
+    keep = tmp_path / "logs"
+    t0 = time.monotonic()
+    rep = DiskFills(60.0, seed=1, rate_hz=100, keep_logs=keep, schedule=[]).run()
+    assert time.monotonic() - t0 < 30.0  # stopped when the sensor did, not after 60 s
+    assert not rep.passed
+    assert any("virtual sensor stopped" in r and "No space left" in r for r in rep.reasons)
+    assert (keep / "report.json").exists() and (keep / "daemon.log").exists()
 
 
 def test_soak_60s_passes(capsys: Any, tmp_path: Path) -> None:
