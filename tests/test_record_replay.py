@@ -116,17 +116,25 @@ def test_replay_publishes_what_the_live_run_did(
     assert any(m.status != "ok" for m in replayed)  # a run with dropouts and filtering in it
 
 
+def lunad_record(
+    helpers: Any, dev: PtyDevice, out: Path, duration_s: float, **run: Any
+) -> subprocess.CompletedProcess[str]:
+    """``lunad record`` from ``dev`` into ``out`` for ``duration_s`` seconds, to the end."""
+    return subprocess.run(
+        [*helpers.lunad, "record", "--device", dev.path, "--out", str(out),
+         "--duration", f"{duration_s:g}"],
+        capture_output=True,
+        text=True,
+        **run,
+    )  # fmt: skip
+
+
 def test_lunad_record_command(
     device: Callable[..., PtyDevice], tmp_path: Path, helpers: Any
 ) -> None:
     dev = device(rate_hz=100, output_enabled=False)
     out = tmp_path / "cmd.lunarec"
-    r = subprocess.run(
-        [*helpers.lunad, "record", "--device", dev.path, "--out", str(out), "--duration", "2.0"],
-        capture_output=True,
-        text=True,
-        timeout=30,
-    )
+    r = lunad_record(helpers, dev, out, 2.0, timeout=30)
     assert r.returncode == 0, r.stderr
     from lunad.protocol import FrameParser
 
@@ -298,13 +306,7 @@ def test_lunad_record_stops_with_one_line_when_the_disk_fills(
     before it replays. It used to end in an OSError traceback, exit 1."""
     dev = device(rate_hz=100, output_enabled=False)
     out = tmp_path / "full.lunarec"
-    r = subprocess.run(
-        [*helpers.lunad, "record", "--device", dev.path, "--out", str(out), "--duration", "60"],
-        capture_output=True,
-        text=True,
-        timeout=90,
-        preexec_fn=_file_size_limit(4096),
-    )
+    r = lunad_record(helpers, dev, out, 60, timeout=90, preexec_fn=_file_size_limit(4096))
     assert r.returncode == 74, r.stderr
     assert "Traceback" not in r.stderr
     last = r.stderr.splitlines()[-1]
