@@ -373,7 +373,7 @@ class Daemon:
         assert pub is not None
         wait = self._wake.wait
         feed = self.parser.feed
-        step = self._step
+        filter_step = self.filter.step
         period = self._publish_period_ns
         spacing = self._frame_period_ns
         batched = self._batched is src
@@ -416,15 +416,24 @@ class Daemon:
                 if self.recorder is not None:
                     self._record(chunk)
                 items = feed(data, t_mono)
-                k = len(items)
+                t = t_mono - len(items) * spacing
+                n = dropouts = 0
                 for item in items:
-                    k -= 1
+                    t += spacing
                     if type(item) is Frame:
                         raw_m = item.distance_m
-                        est = step(item, raw_m, t_mono - k * spacing)
-                        self._unsent = (item, raw_m, est, t_mono)
+                        est = filter_step(raw_m, item.amp, t)
+                        if est.status is _DROPOUT:
+                            dropouts += 1
+                        n += 1
+                        last = item
                     else:
                         self._on_reply(item)  # type: ignore[arg-type]
+                if n:  # counted once a read, not per frame as ``_step`` does
+                    self.seq += n
+                    health.frames += n
+                    health.dropouts += dropouts
+                    self._unsent = (last, raw_m, est, t_mono)
                 if not ticking:
                     due = t_mono >= self._next_publish
             elif batched and now - self._last_bytes >= self._batch_stall_ns:

@@ -271,6 +271,45 @@ def test_the_filter_gets_a_reads_frames_a_frame_period_apart(
     assert not all(matches(m, alike[m.seq]) for m in got)  # the check can tell them apart
 
 
+@pytest.mark.parametrize("publish_hz", [None, 10])
+def test_health_counts_every_frame_and_every_dropout(
+    start_daemon: Any, endpoint: str, tmp_path: Path, publish_hz: int | None
+) -> None:
+    """``frames`` and ``dropout_ratio`` count each filtered frame, in both loops: the
+    low-power one adds up a read's frames after filtering them all. A replay of reads of
+    5 frames, one of them too weak to range (a dropout) at a different place each read:
+    every health interval, made of whole reads, has a dropout ratio of 1/5."""
+    from lunad.daemon.record import Recorder
+    from lunad.daemon.source import Chunk
+    from lunad.protocol.frame import encode_frame
+    from lunad.protocol.messages import HealthMessage
+
+    rec = tmp_path / "weak_one_in_five.lunarec"
+    per_read, reads = 5, 60
+    with Recorder(rec, source_desc="test", frame_rate_hz=250) as r:
+        for k in range(reads):
+            data = b"".join(
+                encode_frame(200, 50 if j == k % per_read else 1500, 2368)  # amp 50: weak
+                for j in range(per_read)
+            )
+            r(Chunk(data, 10**12 + (k + 1) * per_read * 4_000_000))
+    cfg = tmp_path / "often.toml"  # about six health intervals in the 1.2 s replay
+    cfg.write_text("[publish]\nhealth_interval_s = 0.2\n")
+    d = start_daemon(  # a replay starts once a subscriber is there: every interval is seen
+        *("--config", str(cfg), "--replay", str(rec), "--publish", endpoint),
+        *(("--publish-hz", str(publish_hz)) if publish_hz else ()),
+    )
+    ratios, frames = [], 0
+    with Subscriber(endpoint) as sub:  # until the daemon, at the end of the replay, exits
+        while (m := sub.recv(timeout_s=30.0 if not frames else 3.0)) is not None:
+            if isinstance(m, HealthMessage) and m.frames > frames:
+                ratios.append(m.dropout_ratio)
+                frames = m.frames
+    assert d.stop() == 0
+    assert len(ratios) >= 2 and ratios == [0.2] * len(ratios), ratios
+    assert f"stopped: {per_read * reads} frames published" in d.log  # the count health keeps
+
+
 def test_sighup_reload_good_and_bad(
     device: Callable[..., PtyDevice],
     start_daemon: Any,
