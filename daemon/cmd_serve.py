@@ -62,17 +62,21 @@ def run(args: argparse.Namespace) -> int:
     from lunad.daemon.config import load_config
     from lunad.daemon.errors import EX_CONFIG, EX_UNAVAILABLE, ConfigError, PublishError
 
-    overrides: dict[str, Any] = {
-        **source_overrides(args),
-        "source.path": args.replay,
-        "source.speed": args.speed,
-        "source.record": args.record,
-        "publish.endpoint": args.publish,
-        "publish.publish_hz": args.publish_hz,
-        "sensor.name": args.name,
-    }
     try:
+        overrides: dict[str, Any] = {
+            **source_overrides(args),
+            "source.path": args.replay,
+            "source.speed": args.speed,
+            "source.record": args.record,
+            "publish.endpoint": args.publish,
+            "publish.publish_hz": args.publish_hz,
+            "sensor.name": args.name,
+        }
         cfg = load_config(args.config, overrides)
+        if cfg.source.kind == "replay":
+            from lunad.daemon.replay_source import check_replay
+
+            check_replay(cfg.source)
     except ConfigError as exc:
         print(f"lunad serve: {exc}", file=sys.stderr)
         return EX_CONFIG
@@ -80,16 +84,6 @@ def run(args: argparse.Namespace) -> int:
     from lunad.daemon.cli import setup_logging
     from lunad.daemon.publisher import Publisher
     from lunad.daemon.serve import Daemon
-
-    if cfg.source.kind == "replay":
-        from lunad.daemon.errors import LunadError
-        from lunad.daemon.replay_source import ReplaySource
-
-        try:
-            ReplaySource.from_config(cfg.source).close()
-        except (LunadError, ValueError) as exc:
-            print(f"lunad serve: --replay: {exc}", file=sys.stderr)
-            return EX_CONFIG
 
     setup_logging(cfg.log_level)
     daemon = Daemon(cfg, args.config, overrides)

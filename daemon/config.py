@@ -10,16 +10,18 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import re
 import tomllib
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, get_args, get_origin
 
 from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
     ValidationError,
+    ValidationInfo,
     field_validator,
     model_validator,
 )
@@ -31,6 +33,7 @@ from lunad.protocol.commands import BAUD_RATES, FRAME_RATES_HZ
 DEFAULT_ENDPOINT = "tcp://127.0.0.1:7781"
 DEFAULT_DEVICE = "/dev/serial0"
 _ENDPOINT_RE = re.compile(r"^(tcp://[^\s]+:(\d+|\*)|ipc://[^\s]+|inproc://[^\s]+)$")
+PORT_MAX = 65535  # TCP ports are 16 bits; libzmq takes a larger number modulo 2**16
 
 FLAGS: dict[str, str] = {
     "sensor.name": "--name",
@@ -53,6 +56,25 @@ FLAGS: dict[str, str] = {
 
 class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _no_bool_for_number(cls, v: Any, info: ValidationInfo) -> Any:
+        """TOML's ``true`` is not a number: pydantic would take it as 1 (1 Hz, 1 message)."""
+        if isinstance(v, bool) and info.field_name is not None:
+            if _is_number(cls.model_fields[info.field_name].annotation):
+                raise ValueError("must be a number, not true or false")
+        return v
+
+
+def _is_number(annotation: Any) -> bool:
+    """True for ``int``, ``float``, and those made optional or ``Annotated``."""
+    if annotation in (int, float):
+        return True
+    return any(
+        _is_number(a)
+        for a in get_args(annotation)[: 1 if get_origin(annotation) is Annotated else None]
+    )
 
 
 class SensorSection(_Section):
@@ -78,7 +100,8 @@ class SourceSection(_Section):
     ``replay`` plays the recording at ``path`` at ``speed`` x real time (``max``, stored
     as None: as fast as possible). ``record`` names a file that gets every byte read,
     with its read time (``lunad serve --record``; see ``lunad.daemon.record``).
-    ``rate_hz`` is filled in from [sensor] for backends that pace themselves (I2C).
+    ``rate_hz`` is [sensor] ``frame_rate_hz``, copied here by ``load_config`` for
+    backends that pace themselves (I2C); it is not a key of its own.
     """
 
     kind: Literal["serial", "i2c", "replay"] = "serial"
@@ -86,9 +109,9 @@ class SourceSection(_Section):
     baud: int = 115200
     bus: Annotated[str, Field(pattern=r"^(\d+|sim)$")] = "1"
     address: Annotated[int, Field(ge=0x08, le=0x77)] = 0x10
-    path: str | None = None
+    path: Annotated[str, Field(min_length=1)] | None = None
     speed: float | None = 1.0
-    record: str | None = None
+    record: Annotated[str, Field(min_length=1)] | None = None
     rate_hz: int = 100
 
     @field_validator("address", mode="before")
@@ -117,6 +140,16 @@ class SourceSection(_Section):
     def _replay_needs_path(self) -> SourceSection:
         if self.kind == "replay" and not self.path:
             raise ValueError("replay needs path (--replay FILE)")
+        if (
+            self.kind == "replay"
+            and self.path
+            and self.record
+            and _same_path(self.path, self.record)
+        ):
+            raise ValueError(
+                f"record (--record) is the recording being replayed, {self.path}: "
+                "it would replay its own output without end"
+            )
         return self
 
     @field_validator("baud")
@@ -133,13 +166,17 @@ class PublishSection(_Section):
     endpoint: str = DEFAULT_ENDPOINT
     health_interval_s: Annotated[float, Field(gt=0, le=60)] = 1.0
     sndhwm: Annotated[int, Field(ge=1, le=1_000_000)] = 1000
-    publish_hz: Annotated[float, Field(gt=0, le=250)] | None = None
+    publish_hz: Annotated[float, Field(ge=0.01, le=250)] | None = None
 
     @field_validator("endpoint")
     @classmethod
     def _endpoint(cls, v: str) -> str:
-        if not _ENDPOINT_RE.match(v):
+        m = _ENDPOINT_RE.match(v)
+        if not m:
             raise ValueError("must look like tcp://HOST:PORT or ipc:///PATH")
+        port = m.group(2)
+        if port is not None and port != "*" and not 1 <= int(port) <= PORT_MAX:
+            raise ValueError(f"the TCP port must be 1..{PORT_MAX}")
         return v
 
 
@@ -164,7 +201,7 @@ class FilterSection(_Section):
                 ok = type(value) is type(default)  # an int field takes no 2.7, no inf
             else:
                 ok = isinstance(value, (int, float)) and not isinstance(value, bool)
-                if ok and not math.isfinite(value):
+                if ok and not _finite(value):
                     raise ValueError(f"filter.{key}: must be a finite number, got {value!r}")
             if not ok:
                 kind = _KINDS.get(type(default), f"a {type(default).__name__}")
@@ -220,10 +257,12 @@ def load_config(path: Path | str | None, overrides: dict[str, Any] | None = None
                 raise ConfigError(f"{part}: must be a table in {origin}")
             node = child
         node[leaf] = value
-    sensor = data.get("sensor")
     source = data.get("source")
-    if isinstance(source, dict) and isinstance(sensor, dict) and "frame_rate_hz" in sensor:
-        source.setdefault("rate_hz", sensor["frame_rate_hz"])
+    if isinstance(source, dict) and "rate_hz" in source:
+        raise ConfigError(
+            f"invalid configuration ({origin}): source.rate_hz: unknown key; "
+            "the frame rate is [sensor] frame_rate_hz (--rate)"
+        )
     try:
         cfg = Config.model_validate(data)
         cfg.filter.to_filter_config()
@@ -231,7 +270,25 @@ def load_config(path: Path | str | None, overrides: dict[str, Any] | None = None
         raise ConfigError(_describe(exc, origin)) from None
     except ValueError as exc:
         raise ConfigError(f"{origin}: {exc}") from None
-    return cfg
+    rate = cfg.sensor.frame_rate_hz
+    return cfg.model_copy(update={"source": cfg.source.model_copy(update={"rate_hz": rate})})
+
+
+def _finite(value: float) -> bool:
+    """``math.isfinite`` that takes an integer too large for a float as not finite."""
+    try:
+        return math.isfinite(value)
+    except OverflowError:
+        return False
+
+
+def _same_path(a: str, b: str) -> bool:
+    """True when ``a`` and ``b`` name one file: the same file on disk, or, where
+    either does not exist yet, the same absolute path."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return os.path.abspath(a) == os.path.abspath(b)
 
 
 def _describe(exc: ValidationError, origin: str) -> str:
@@ -245,6 +302,7 @@ def _describe(exc: ValidationError, origin: str) -> str:
         if err["type"] == "extra_forbidden":
             msg = "unknown key"
         got = err.get("input")
-        suffix = "" if err["type"] in ("extra_forbidden", "missing") else f"; got {got!r}"
+        quiet = err["type"] in ("extra_forbidden", "missing") or isinstance(got, dict)
+        suffix = "" if quiet else f"; got {got!r}"
         lines.append(f"{where}: {msg}{suffix}")
     return f"invalid configuration ({origin}): " + "; ".join(lines)

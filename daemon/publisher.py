@@ -58,7 +58,10 @@ class Publisher:
         self._waker: threading.Thread | None = None
         self._waker_stop_r, self._waker_stop_w = -1, -1
         if endpoint.startswith("ipc://"):
-            Path(endpoint.removeprefix("ipc://")).parent.mkdir(parents=True, exist_ok=True)
+            try:
+                Path(endpoint.removeprefix("ipc://")).parent.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise PublishError(f"cannot bind {endpoint}: {exc}") from exc
         self._ctx = zmq.Context()
         self._sock = self._ctx.socket(zmq.XPUB)
         self._sock.setsockopt(zmq.SNDHWM, sndhwm)

@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from lunad.daemon.errors import SourceOpenError
+from lunad.daemon.errors import ConfigError, LunadError, SourceOpenError
 from lunad.daemon.record import Pacer, Replay, check_speed
 from lunad.daemon.source import Chunk, Source
 from lunad.daemon.wakeup import Wakeup
@@ -143,3 +143,16 @@ class ReplaySource(Source):
     def __str__(self) -> str:
         pace = "max speed" if self.speed is None else f"{self.speed:g}x"
         return f"replay {self.path} at {pace}"
+
+
+def check_replay(cfg: SourceSection) -> None:
+    """Open and close the recording ``cfg`` names, so that a path that is missing or not
+    a recording stops ``lunad serve`` before it starts, and a SIGHUP to one is refused.
+
+    Raises:
+        ConfigError: naming ``--replay`` and what is wrong with the file.
+    """
+    try:
+        ReplaySource.from_config(cfg).close()
+    except (LunadError, ValueError) as exc:
+        raise ConfigError(f"--replay: {exc}") from exc

@@ -42,6 +42,7 @@ from lunad.daemon.health import Health, State
 from lunad.daemon.notify import Notifier
 from lunad.daemon.publisher import Publisher
 from lunad.daemon.record import Recorder
+from lunad.daemon.replay_source import check_replay
 from lunad.daemon.source import Chunk, Source, open_source
 from lunad.daemon.wakeup import Wakeup
 from lunad.filters import Estimate, RangeFilter, Status
@@ -750,6 +751,8 @@ class Daemon:
         where = self.config_path or "the command line"
         try:
             new = load_config(self.config_path, self.overrides)
+            if new.source.kind == "replay" and new.source != self.cfg.source:
+                check_replay(new.source)
         except ConfigError as exc:
             log.error("SIGHUP: keeping the running configuration: %s", exc)
             self.notifier.ready()

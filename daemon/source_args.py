@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import argparse
 
+from lunad.daemon.errors import ConfigError
+
 
 def add_source_args(p: argparse.ArgumentParser) -> None:
     """The flags that choose and set up a source; shared by serve, record and calibrate."""
@@ -23,9 +25,24 @@ def add_source_args(p: argparse.ArgumentParser) -> None:
 
 
 def source_overrides(args: argparse.Namespace) -> dict[str, object]:
-    """Config overrides (dotted field -> value) from ``add_source_args`` flags."""
-    replay = getattr(args, "replay", None)
-    kind = "replay" if replay else "i2c" if args.bus else "serial" if args.device else None
+    """Config overrides (dotted field -> value) from ``add_source_args`` flags.
+
+    Raises:
+        ConfigError: flags name two sources (``--device`` with ``--bus``, ``--replay``
+            with either): which one the user meant is not ours to guess.
+    """
+    given = [
+        flag
+        for flag, value in (
+            ("--replay", getattr(args, "replay", None)),
+            ("--bus", args.bus),
+            ("--device", args.device),
+        )
+        if value is not None
+    ]
+    if len(given) > 1:
+        raise ConfigError(f"{' and '.join(given)} name different sources; give one of them")
+    kind = {"--replay": "replay", "--bus": "i2c", "--device": "serial"}[given[0]] if given else None
     return {
         "source.kind": kind,
         "source.device": args.device,

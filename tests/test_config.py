@@ -51,6 +51,16 @@ def test_file_and_flags(tmp_path: Path) -> None:
         ("[filter]\nk_m_per_lux = 1e-320\n", {}, "k_m_per_lux must be between 1e-09 and 1e+09"),
         ("[filter]\naccel_psd = 1e300\n", {}, "accel_psd must be 0 or between 1e-09 and 1e+09"),
         ("[source\n", {}, "is not valid TOML"),
+        ("", {"publish.endpoint": "tcp://127.0.0.1:99999"}, "the TCP port must be 1..65535"),
+        ("", {"publish.endpoint": "tcp://*:0"}, "publish.endpoint (--publish): the TCP port"),
+        ("[sensor]\nframe_rate_hz = true\n", {}, "frame_rate_hz (--rate): must be a number"),
+        ("[publish]\nsndhwm = true\n", {}, "publish.sndhwm: must be a number, not true"),
+        ("[publish]\npublish_hz = true\n", {}, "publish_hz (--publish-hz): must be a number"),
+        ("", {"publish.publish_hz": "1e-300"}, "publish_hz (--publish-hz): Input should be"),
+        ("[source]\nrate_hz = 999\n", {}, "source.rate_hz: unknown key; the frame rate is"),
+        ("", {"source.record": ""}, "source.record (--record): String should have at least"),
+        ("", {"source.kind": "replay", "source.path": ""}, "source.path (--replay): String"),
+        ("[filter]\namp_ref = 1" + "0" * 400 + "\n", {}, "amp_ref: must be a finite number"),
     ],
 )
 def test_errors_name_the_field(tmp_path: Path, text: str, overrides: dict, needle: str) -> None:
@@ -59,6 +69,32 @@ def test_errors_name_the_field(tmp_path: Path, text: str, overrides: dict, needl
     with pytest.raises(ConfigError) as info:
         load_config(f, overrides)
     assert needle in str(info.value)
+
+
+def test_the_i2c_rate_is_the_sensor_rate_and_a_bad_one_is_named_once() -> None:
+    """``source.rate_hz`` is a copy of ``sensor.frame_rate_hz`` for the I2C source to
+    pace itself by; set by hand it went unchecked (999 Hz crashed the daemon's loop)."""
+    assert load_config(None, {"sensor.frame_rate_hz": "250"}).source.rate_hz == 250
+    assert load_config(None).source.rate_hz == load_config(None).sensor.frame_rate_hz
+    with pytest.raises(ConfigError) as info:
+        load_config(None, {"source.kind": "i2c", "source.bus": "sim", "sensor.frame_rate_hz": "a"})
+    assert "sensor.frame_rate_hz (--rate)" in str(info.value)
+    assert "rate_hz" not in str(info.value).replace("sensor.frame_rate_hz", "")
+
+
+def test_a_replay_cannot_record_into_itself(tmp_path: Path) -> None:
+    """Recording into the file being replayed fed the replay its own output: 5 kB grew
+    to 4.5 MB in 7 s and never ended. Any spelling of the same file is refused."""
+    rec = tmp_path / "field.lunarec"
+    rec.write_bytes(b"")
+    (tmp_path / "link.lunarec").symlink_to(rec)
+    for record in (str(rec), str(tmp_path / "." / rec.name), str(tmp_path / "link.lunarec")):
+        with pytest.raises(ConfigError, match=r"\(--record\) is the recording being replayed"):
+            load_config(
+                None, {"source.kind": "replay", "source.path": str(rec), "source.record": record}
+            )
+    other = {"source.kind": "replay", "source.path": str(rec), "source.record": str(rec) + ".2"}
+    assert load_config(None, other).source.record == str(rec) + ".2"
 
 
 def test_missing_file() -> None:
@@ -74,6 +110,9 @@ def test_missing_file() -> None:
         ["--config", "/nonexistent.toml"],
         ["--publish", "nonsense"],
         ["--bogus-flag"],
+        ["--bus", "sim"],  # with the --device every case here gives: two sources
+        ["--replay", ""],
+        ["--record", ""],
     ],
 )
 def test_serve_exits_78_with_one_clear_message(args: list[str], tmp_path: Path) -> None:

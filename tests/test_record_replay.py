@@ -209,6 +209,36 @@ def test_replay_keeps_sending_health(start_daemon: Any, endpoint: str, tmp_path:
     assert len(while_playing) >= 3, f"health while the 4 s replay played: {while_playing} frames"
 
 
+def test_sighup_to_a_missing_recording_keeps_the_replay(
+    start_daemon: Any, endpoint: str, tmp_path: Path, helpers: Any
+) -> None:
+    """Start-up refuses a ``--replay`` path that is missing; a reload to one was taken,
+    dropped the replay that worked and sat in ``reconnecting``. Now it is refused too."""
+    from lunad.daemon.record import Recorder
+    from lunad.daemon.source import Chunk
+    from lunad.protocol.frame import encode_frame
+
+    rec = tmp_path / "four_s.lunarec"
+    with Recorder(rec, source_desc="test") as r:
+        five = b"".join(encode_frame(200, 1500, 2368) for _ in range(5))
+        for k in range(200):  # 4 s of a 250 Hz sensor, five frames a chunk
+            r(Chunk(five, (k + 1) * 20_000_000))
+    cfg = tmp_path / "replay.toml"
+    cfg.write_text(f'[source]\nkind = "replay"\npath = "{rec}"\n')
+    d = start_daemon("--config", str(cfg), "--publish", endpoint)
+    with Subscriber(endpoint) as sub:
+        first = helpers.wait_for(sub, helpers.is_range, timeout=helpers.startup_s)
+        cfg.write_text(cfg.read_text().replace(str(rec), str(tmp_path / "missing.lunarec")))
+        d.proc.send_signal(signal.SIGHUP)
+        deadline = time.monotonic() + 10
+        while "keeping the running configuration" not in d.log:
+            assert time.monotonic() < deadline, d.log
+            time.sleep(0.05)
+        later = helpers.wait_for(sub, lambda m: helpers.is_range(m) and m.seq > first.seq + 50, 5)
+    assert later.seq > first.seq + 50  # the replay went on
+    assert "missing.lunarec" in d.log and "configuration reloaded" not in d.log, d.log
+
+
 def test_a_recording_that_cannot_be_opened_stops_serve_before_it_starts(
     tmp_path: Path, endpoint: str
 ) -> None:

@@ -338,9 +338,22 @@ def test_sighup_reload_good_and_bad(
             sub, lambda m: isinstance(m, RangeMessage) and m.t_mono_ns > after, timeout=5
         )
         assert m.sensor == "two" and d.proc.poll() is None
+        # an ipc endpoint whose folder cannot be made (here a file is in the way) ended
+        # the daemon with a traceback and exit 1: refused like any unbindable one
+        unmakeable = f"ipc://{cfg}/lunad.sock"
+        cfg.write_text(cfg.read_text().replace(endpoint, unmakeable).replace("amp_ref = -1", ""))
+        d.proc.send_signal(signal.SIGHUP)
+        time.sleep(0.5)
+        after = time.monotonic_ns()
+        m = helpers.wait_for(
+            sub, lambda m: isinstance(m, RangeMessage) and m.t_mono_ns > after, timeout=5
+        )
+        assert m.sensor == "two" and d.proc.poll() is None
     log = d.log
     assert "configuration reloaded" in log and "changed: sensor" in log
     assert "keeping the running configuration" in log and "amp_ref" in log
+    assert f"keeping the running configuration: cannot bind {unmakeable}" in log, log
+    assert "Traceback" not in log
 
 
 def _free_tcp_port() -> int:
