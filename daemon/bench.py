@@ -82,16 +82,25 @@ def floor_main(argv: list[str] | None = None) -> int:
 
     _exit_on(signal.SIGTERM, signal.SIGINT)
 
+    try:  # the device first: a missing one leaves no bound socket file behind
+        fd = os.open(args.device, os.O_RDWR | os.O_NOCTTY)
+    except OSError as exc:
+        print(f"floor: {exc}", file=sys.stderr)
+        return 1
+    try:
+        tty.setraw(fd)
+        attrs = termios.tcgetattr(fd)
+        attrs[4] = attrs[5] = termios.B115200
+        termios.tcsetattr(fd, termios.TCSANOW, attrs)
+        os.write(fd, OUTPUT_ON)
+    except (OSError, termios.error) as exc:
+        os.close(fd)
+        print(f"floor: {args.device} is not a serial port: {exc}", file=sys.stderr)
+        return 1
     ctx = zmq.Context()
     sock = ctx.socket(zmq.PUB)
     sock.setsockopt(zmq.LINGER, 0)
     sock.bind(args.publish)
-    fd = os.open(args.device, os.O_RDWR | os.O_NOCTTY)
-    tty.setraw(fd)
-    attrs = termios.tcgetattr(fd)
-    attrs[4] = attrs[5] = termios.B115200
-    termios.tcsetattr(fd, termios.TCSANOW, attrs)
-    os.write(fd, OUTPUT_ON)
 
     send = sock.send_multipart
     noblock = zmq.NOBLOCK
@@ -132,7 +141,7 @@ def receiver_main(argv: list[str] | None = None) -> int:
     not wait for the GIL of the process that plays the sensor.
 
     Run as ``python -m lunad.daemon.bench receive --connect ENDPOINT --out FILE``.
-    Prints the monotonic time of the first message on stdout; on SIGTERM writes
+    Prints the monotonic time of the first message on stdout; on SIGTERM or SIGINT writes
     every message's ``seq`` and receive time (``time.monotonic_ns()``, the same
     clock the sensor's send times use) to FILE as int64 pairs, and exits 0.
     """
@@ -148,7 +157,7 @@ def receiver_main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", required=True)
     args = p.parse_args(argv)
 
-    _exit_on(signal.SIGTERM)
+    _exit_on(signal.SIGTERM, signal.SIGINT)  # SIGINT: Ctrl-C reaches the whole group
     ctx = zmq.Context()
     sub = ctx.socket(zmq.SUB)
     sub.setsockopt(zmq.RCVHWM, 0)

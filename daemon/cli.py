@@ -78,6 +78,33 @@ def setup_logging(level: str = "info") -> None:
     logging.basicConfig(level=level.upper(), format=fmt, stream=sys.stderr, force=True)
 
 
+def interrupt_on(*signums: int) -> list[int]:
+    """Make these signals interrupt the main thread as Ctrl-C does (``KeyboardInterrupt``).
+
+    For commands that start children or make temporary files (``demo``, ``bench``):
+    SIGTERM's default action ends the process at once, and its ``finally`` blocks,
+    which stop the children and remove the files, never run. The first signal
+    interrupts; the rest are ignored while those blocks clean up.
+
+    Returns:
+        The list the signal's number is appended to when it comes, so the command can
+        tell an interruption apart and exit 128 + that number, as the shell would.
+    """
+    import signal
+
+    got: list[int] = []
+
+    def interrupt(signum: int, _frame: object) -> None:
+        got.append(signum)
+        for each in signums:
+            signal.signal(each, signal.SIG_IGN)
+        raise KeyboardInterrupt
+
+    for signum in signums:
+        signal.signal(signum, interrupt)
+    return got
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``lunad`` console script."""
     parser = build_parser()

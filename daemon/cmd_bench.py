@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 from typing import Any
 
@@ -27,6 +28,10 @@ Measure lunad on this machine and print the figures.
                   the same rounds, alternating; lunad / floor is the headline.
 
 The machine should be otherwise quiet; the serve figures are medians over --rounds.
+
+Exit codes: 0 when every run worked (a missed target is reported, not an error); 1
+when a serve run failed; 2 for a bad option; 128 + the signal's number (130 for
+Ctrl-C, 143 for SIGTERM) when stopped early, with every process it started stopped.
 """
 
 EPILOG = """\
@@ -73,7 +78,11 @@ def add_parser(sub: Any) -> None:
         "--rounds", type=int, metavar="N", help="serve rounds, alternating (default 3; --quick 1)"
     )
     p.add_argument(
-        "--publish-hz", type=float, default=50.0, metavar="N", help="low-power rate (default 50)"
+        "--publish-hz",
+        type=float,
+        default=50.0,
+        metavar="N",
+        help="low-power rate, 1..250 (default 50)",
     )
     p.add_argument(
         "--pin",
@@ -86,6 +95,29 @@ def add_parser(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run every benchmark and print the figures; 0 when every run worked."""
+    from lunad.daemon import bench
+    from lunad.daemon.cli import interrupt_on
+
+    quick = bool(args.quick)
+    duration = args.duration if args.duration is not None else (2.0 if quick else 12.0)
+    rounds = args.rounds if args.rounds is not None else (1 if quick else 3)
+    if duration <= 0 or rounds < 1:
+        print("lunad bench: --duration must be > 0 and --rounds >= 1", file=sys.stderr)
+        return 2
+    if not 1 <= args.publish_hz <= bench.SENSOR_HZ:  # the pipeline sleeps 1/N a message
+        print(f"lunad bench: --publish-hz must be 1..{bench.SENSOR_HZ}", file=sys.stderr)
+        return 2
+    interrupted = interrupt_on(signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+    try:
+        return _run(args, quick, duration, rounds)
+    except KeyboardInterrupt:  # every run's finally has stopped its processes by now
+        signum = interrupted[0] if interrupted else signal.SIGINT
+        print(f"lunad bench: stopped by {signal.Signals(signum).name}", file=sys.stderr)
+        return 128 + signum
+
+
+def _run(args: argparse.Namespace, quick: bool, duration: float, rounds: int) -> int:
+    """Every benchmark, then the figures; 0 when every run worked."""
     import dataclasses
     import json
     import logging
@@ -93,15 +125,6 @@ def run(args: argparse.Namespace) -> int:
     from lunad.daemon import bench
 
     log = logging.getLogger("lunad.bench")
-    quick = bool(args.quick)
-    duration = args.duration if args.duration is not None else (2.0 if quick else 12.0)
-    rounds = args.rounds if args.rounds is not None else (1 if quick else 3)
-    if duration <= 0 or rounds < 1:
-        print("lunad bench: --duration must be > 0 and --rounds >= 1", file=sys.stderr)
-        return 2
-    if args.publish_hz <= 0:
-        print("lunad bench: --publish-hz must be > 0", file=sys.stderr)
-        return 2
 
     log.info("bulk decode")
     bulk = bench.bench_bulk(200_000 if quick else 2_000_000, repeats=3 if quick else 5)

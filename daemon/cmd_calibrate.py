@@ -117,14 +117,20 @@ def write_amp_ref(path: Path, amp_ref: float) -> None:
     temporary file is created 0600 and owned by us. A new file gets 0666 less the umask,
     as ``open()`` would give it.
 
+    A symlinked ``path`` (``/etc/lunad/front.toml`` pointing into a config repository) is
+    followed: the file it points to is replaced, in its own directory, and the link
+    stays. Replacing ``path`` itself would swap the link for a copy and leave the
+    config the link named, the one that is maintained, with the old amp_ref.
+
     Raises:
         ValueError: the edit would not leave a file where ``[filter] amp_ref`` reads back
             as ``amp_ref`` (a layout this line-based edit does not follow); the file is
             left as it was.
         OSError: the file cannot be read or replaced.
     """
-    old = path.stat() if path.exists() else None
-    text = path.read_text(encoding="utf-8") if old is not None else ""
+    target = path.resolve()
+    old = target.stat() if target.exists() else None
+    text = target.read_text(encoding="utf-8") if old is not None else ""
     line = f"amp_ref = {amp_ref:.1f}"
     lines = text.splitlines()
     section: dict[str, Any] | None = None
@@ -160,18 +166,36 @@ def write_amp_ref(path: Path, amp_ref: float) -> None:
         umask = os.umask(0)
         os.umask(umask)
         mode = 0o666 & ~umask
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.")
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as f:
             if old is not None and os.geteuid() == 0:
                 os.fchown(f.fileno(), old.st_uid, old.st_gid)
             os.fchmod(f.fileno(), mode)
             f.write(new_text)
-        os.replace(tmp, path)
+        os.replace(tmp, target)
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+def _flag_problem(args: argparse.Namespace) -> str | None:
+    """What is wrong with the measurement flags, naming the flag, or None.
+
+    Checked before the sensor opens: a value no calibration can use would otherwise be
+    found only after ``--seconds`` of measuring (R cos(angle) outside (0, 1]), or not
+    at all (a distance of 0 or below, which only the mismatch warning reads).
+    """
+    if not 0 < args.reflectivity <= 1:
+        return f"--reflectivity must be above 0 and at most 1, got {args.reflectivity}"
+    if not 0 <= args.angle < 90:
+        return f"--angle must be at least 0 and below 90 degrees, got {args.angle}"
+    if not 0 < args.distance < math.inf:
+        return f"--distance must be positive and finite (metres), got {args.distance}"
+    if not 0 < args.seconds < math.inf:
+        return f"--seconds must be positive and finite, got {args.seconds}"
+    return None
 
 
 def add_parser(sub: Any) -> None:
@@ -185,9 +209,13 @@ def add_parser(sub: Any) -> None:
     )
     p.usage_exit_code = 78
     add_source_args(p)
-    p.add_argument("--reflectivity", type=float, required=True, metavar="R", help="0..1")
-    p.add_argument("--distance", type=float, required=True, metavar="M", help="metres")
-    p.add_argument("--angle", type=float, default=0.0, metavar="DEG", help="incidence angle")
+    p.add_argument(
+        "--reflectivity", type=float, required=True, metavar="R", help="above 0, at most 1"
+    )
+    p.add_argument("--distance", type=float, required=True, metavar="M", help="metres, above 0")
+    p.add_argument(
+        "--angle", type=float, default=0.0, metavar="DEG", help="incidence angle, 0 to below 90"
+    )
     p.add_argument(
         "--seconds", type=float, default=5.0, metavar="S", help="how long to measure (default 5)"
     )
@@ -208,6 +236,9 @@ def run(args: argparse.Namespace) -> int:
     from lunad.daemon.source import open_source
     from lunad.protocol import Frame, FrameParser, commands
 
+    if (problem := _flag_problem(args)) is not None:
+        print(f"lunad calibrate: {problem}", file=sys.stderr)
+        return EX_CONFIG
     if args.write and not args.config:
         print("lunad calibrate: --write needs --config FILE", file=sys.stderr)
         return EX_CONFIG

@@ -11,13 +11,21 @@ import tempfile
 import threading
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from lunad.sim.scenario import Scenario
 
 DESCRIPTION = """\
 Run the whole path for a few seconds with no hardware: a virtual TF-Luna on a pty
 (with a little garbage on the line), `lunad serve` as a real subprocess reading it,
 and `lunad watch` printing what a robot would receive. Then stop the daemon with
 SIGTERM, as systemd would, and compare frames sent with frames published.
+
+Exit codes: 0 when the daemon published every good frame the sensor sent and stopped
+cleanly; 1 when it did not, or the virtual sensor failed; 2 for a bad option; 128 +
+the signal's number (130 for Ctrl-C, 143 for SIGTERM) when stopped early, after the
+daemon and the virtual sensor are stopped and the temporary folder removed.
 """
 
 EPILOG = """\
@@ -50,9 +58,7 @@ def add_parser(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the demo; 0 when the daemon published every frame the sensor sent."""
-    from lunad.daemon.cmd_watch import watch
-    from lunad.sim.physics import RealisticSensor
-    from lunad.sim.pty_device import DeviceError, PtyDevice
+    from lunad.daemon.cli import interrupt_on
     from lunad.sim.scenario import ScenarioError, load_scenario
 
     if args.every < 1:  # watch() divides by it, after the sensor and the daemon are up
@@ -63,6 +69,26 @@ def run(args: argparse.Namespace) -> int:
     except ScenarioError as exc:
         print(f"lunad demo: --scenario: {exc}", file=sys.stderr)
         return 2
+
+    interrupted = interrupt_on(signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+    try:
+        return _run(args, scenario, interrupted)
+    except KeyboardInterrupt:  # before the watcher started, or while stopping
+        return _interrupted(interrupted)
+
+
+def _interrupted(signums: list[int]) -> int:
+    """Say the demo was cut short; 128 + the signal's number, as the shell would."""
+    signum = signums[0] if signums else signal.SIGINT
+    print(f"lunad demo: stopped by {signal.Signals(signum).name}", file=sys.stderr)
+    return 128 + signum
+
+
+def _run(args: argparse.Namespace, scenario: Scenario, interrupted: list[int]) -> int:
+    """Sensor, daemon and watcher, until ``--duration`` or a signal."""
+    from lunad.daemon.cmd_watch import watch
+    from lunad.sim.physics import RealisticSensor
+    from lunad.sim.pty_device import DeviceError, PtyDevice
 
     with tempfile.TemporaryDirectory(prefix="lunad-demo-") as tmp:
         link = Path(tmp) / "tfluna"
@@ -117,6 +143,8 @@ def run(args: argparse.Namespace) -> int:
         except DeviceError as exc:  # its thread died: the figures below would mean nothing
             print(f"lunad demo: {exc}", file=sys.stderr)
             return 1
+        if interrupted:  # the watcher took the Ctrl-C: frames were still coming
+            return _interrupted(interrupted)
         published = 0 if seen.last_seq is None else seen.last_seq + 1
         print(
             f"\nThe virtual sensor sent {sent} good frames and {junk} garbage bytes.\n"

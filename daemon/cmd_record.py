@@ -102,6 +102,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"lunad record: --out: {exc}", file=sys.stderr)
         return EX_CONFIG
     write_error: OSError | None = None
+    startup = b""
     try:
         while not stop.is_set():
             left = None if deadline is None else deadline - time.monotonic()
@@ -115,18 +116,24 @@ def run(args: argparse.Namespace) -> int:
                     stop.wait(min(backoff, left or backoff))
                     backoff = min(backoff * 2, BACKOFF_MAX_S)
                     continue
-                backoff = 0.1
                 log.info("recording %s to %s", src, args.out)
-                if cfg.sensor.configure:
-                    src.write(commands.startup(cfg.sensor.frame_rate_hz))
+                startup = (
+                    commands.startup(cfg.sensor.frame_rate_hz) if cfg.sensor.configure else b""
+                )
             try:
+                if startup:
+                    src.write(startup)
+                    startup = b""
                 chunk = src.read(min(0.5, left) if left is not None else 0.5)
             except SourceLostError as exc:
-                log.warning("lost the source: %s; reconnecting", exc)
+                log.warning("lost the source: %s; reconnecting in %.1f s", exc, backoff)
                 src.close()
                 src = None
+                stop.wait(min(backoff, left or backoff))  # a port that fails at once: no spin
+                backoff = min(backoff * 2, BACKOFF_MAX_S)
                 continue
             if chunk is not None:
+                backoff = 0.1
                 try:
                     rec(chunk)
                 except OSError as exc:

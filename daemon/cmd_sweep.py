@@ -44,6 +44,21 @@ def _int_at_least(minimum: int, what: str) -> Callable[[str], int]:
     return parse
 
 
+DEFAULT_PROFILE = "both"
+DEFAULT_FORMAT = "table"
+DEFAULT_READINGS = 1000
+SWEEP_ONLY = {
+    "profile": "--profile",
+    "fmt": "--format",
+    "readings": "--readings",
+    "seed": "--seed",
+    "plot": "--plot",
+}
+"""The sweep's options (dest: flag). They default to None, not to their values, so that
+``run`` can tell one given alongside ``--fit``, which has no use for it: the fit works
+on the calibrated profile's exact expectation (no readings drawn, its own fixed seed for
+its starting points) and plots nothing."""
+
 _positive_int = _int_at_least(1, "a positive integer")
 _seed = _int_at_least(0, "a non-negative integer")
 """numpy.random.default_rng refuses a negative seed."""
@@ -66,20 +81,17 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--profile",
         choices=("paper", "calibrated", "both"),
-        default="both",
         help="which profile(s) to run (default: both)",
     )
     p.add_argument(
         "--format",
         choices=("table", "json"),
-        default="table",
         dest="fmt",
         help="output format (default: table)",
     )
     p.add_argument(
         "--readings",
         type=_positive_int,
-        default=1000,
         metavar="N",
         help="readings per cell (default: 1000, as in the paper)",
     )
@@ -91,7 +103,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--fit",
         action="store_true",
-        help="refit the calibrated profile to Table I and print its parameters",
+        help="refit the calibrated profile to Table I and print its parameters"
+        " (alone: no other option applies to it)",
     )
     p.add_argument(
         "--plot",
@@ -134,17 +147,32 @@ def _run_fit() -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the sweep (or the fit); returns the process exit code."""
+    """Run the sweep (or the fit); returns the process exit code.
+
+    ``--fit`` with a sweep option is refused, as argparse refuses exclusive options:
+    running the fit and dropping the option would hand back something other than
+    what was asked for (no JSON, no plots) after a quarter of a minute.
+    """
     if args.fit:
+        given = [flag for dest, flag in SWEEP_ONLY.items() if getattr(args, dest) is not None]
+        if given:
+            print(
+                f"lunad sweep: error: argument --fit: not allowed with {', '.join(given)}"
+                " (the fit refits the calibrated profile from its exact expectation;"
+                " no other option applies to it)",
+                file=sys.stderr,
+            )
+            return 2
         return _run_fit()
     from lunad.sim.sweep import DEFAULT_SEED, PAPER_GRID, format_json, format_table, run_sweep
 
     seed = DEFAULT_SEED if args.seed is None else args.seed
-    profiles = _profiles(args.profile)
+    readings = DEFAULT_READINGS if args.readings is None else args.readings
+    profiles = _profiles(args.profile or DEFAULT_PROFILE)
     results: list[RowResult] = []
     for profile in profiles:
-        results += run_sweep(profile, PAPER_GRID, args.readings, seed)
-    if args.fmt == "json":
+        results += run_sweep(profile, PAPER_GRID, readings, seed)
+    if (args.fmt or DEFAULT_FORMAT) == "json":
         if len(profiles) == 1:
             objs = [r.to_json() for r in results]
             for o in objs:
@@ -160,7 +188,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             from lunad.sim.sweep import write_plots
 
-            paths = write_plots(profiles, args.plot, args.readings, seed)
+            paths = write_plots(profiles, args.plot, readings, seed)
         except ModuleNotFoundError as exc:
             if exc.name != "matplotlib" and not str(exc.name).startswith("matplotlib"):
                 raise

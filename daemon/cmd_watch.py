@@ -7,7 +7,10 @@ import math
 import sys
 import time
 from dataclasses import dataclass
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
+
+if TYPE_CHECKING:
+    from lunad.protocol.client import Subscriber
 
 DESCRIPTION = """\
 Subscribe to a lunad daemon and print its stream: one line per reading (or every
@@ -48,7 +51,13 @@ def add_parser(sub: Any) -> None:
         help="where the daemon publishes (default tcp://127.0.0.1:7781)",
     )
     p.add_argument("--sensor", help="only this sensor's messages")
-    p.add_argument("--every", type=int, default=1, metavar="N", help="print every Nth reading")
+    p.add_argument(
+        "--every",
+        type=int,
+        default=1,
+        metavar="N",
+        help="print every Nth reading (with --json too; health messages all)",
+    )
     p.add_argument("--refresh", action="store_true", help="one refreshing status line")
     p.add_argument("--json", action="store_true", help="print the raw JSON messages")
     p.add_argument("--count", type=int, metavar="N", help="stop after N readings")
@@ -81,6 +90,52 @@ def format_health(msg: Any) -> str:
     )
 
 
+USAGE_ERROR = 2
+"""Exit code for a bad flag, the one argparse gives for the flags it checks itself."""
+
+
+class EndpointError(ValueError):
+    """``--connect`` names no endpoint a SUB socket can connect to; the message says why."""
+
+
+def _endpoint_problem(endpoint: str) -> str | None:
+    """Why ``endpoint`` is not worth connecting to, or None when it may be.
+
+    libzmq takes a TCP port above 65535 modulo 2**16 and port 0 without complaint, so
+    such an endpoint would wait, silently, on some other port; the rest (no scheme,
+    no port, a bind-only ``*``) libzmq itself refuses when the socket connects.
+    """
+    from lunad.daemon.config import PORT_MAX
+
+    if endpoint.startswith("tcp://"):
+        port = endpoint.rpartition(":")[2]
+        if port.isdigit() and not 1 <= int(port) <= PORT_MAX:
+            return f"the TCP port must be 1..{PORT_MAX}"
+    return None
+
+
+def _subscribe(endpoint: str, sensor: str | None) -> Subscriber:
+    """A connected ``Subscriber``.
+
+    Raises:
+        EndpointError: ``endpoint`` is not one to connect to; libzmq's own error is a
+            traceback that names neither the flag nor the endpoint's expected form.
+    """
+    import zmq
+
+    from lunad.protocol.client import Subscriber
+
+    problem = _endpoint_problem(endpoint)
+    if problem is None:
+        try:
+            return Subscriber(endpoint, sensor=sensor)
+        except zmq.ZMQError as exc:
+            problem = str(exc) if exc.errno is None else zmq.strerror(exc.errno)
+    raise EndpointError(
+        f"--connect {endpoint!r}: {problem}; expected tcp://HOST:PORT or ipc:///PATH"
+    )
+
+
 @dataclass(frozen=True, slots=True)
 class WatchResult:
     """What a watch saw: readings received, readings lost (seq gaps), the last seq."""
@@ -100,8 +155,15 @@ def watch(
     count: int | None = None,
     duration: float | None = None,
 ) -> WatchResult:
-    """Print the stream until ``count`` readings or ``duration`` seconds."""
-    from lunad.protocol.client import Subscriber
+    """Print the stream until ``count`` readings or ``duration`` seconds.
+
+    Every ``every``-th reading is printed, as a line or, with ``as_json``, as its JSON
+    message; health messages are all printed, being rare. ``count`` counts readings
+    received, printed or not.
+
+    Raises:
+        EndpointError: ``endpoint`` is not one to connect to.
+    """
     from lunad.protocol.messages import RangeMessage
 
     readings = 0
@@ -109,7 +171,7 @@ def watch(
     heard = False
     hint_at = time.monotonic() + NOTHING_YET_AFTER_S
     last_health = ""
-    with Subscriber(endpoint, sensor=sensor) as sub:
+    with _subscribe(endpoint, sensor) as sub:
         try:
             while count is None or readings < count:
                 left = None if deadline is None else deadline - time.monotonic()
@@ -123,8 +185,11 @@ def watch(
                     continue
                 heard = True
                 if as_json:
+                    if isinstance(msg, RangeMessage):
+                        readings += 1
+                        if readings % every:
+                            continue
                     out.write(msg.model_dump_json() + "\n")
-                    readings += isinstance(msg, RangeMessage)
                     continue
                 if isinstance(msg, RangeMessage):
                     readings += 1
@@ -151,7 +216,7 @@ def run(args: argparse.Namespace) -> int:
     """Watch until Ctrl-C, ``--count`` or ``--duration``."""
     if args.every < 1:
         print("lunad watch: --every must be at least 1", file=sys.stderr)
-        return 2
+        return USAGE_ERROR
     try:
         result = watch(
             args.connect,
@@ -163,6 +228,9 @@ def run(args: argparse.Namespace) -> int:
             args.count,
             args.duration,
         )
+    except EndpointError as exc:
+        print(f"lunad watch: {exc}", file=sys.stderr)
+        return USAGE_ERROR
     except KeyboardInterrupt:
         return 0
     print(f"{result.readings} readings, {result.lost} lost (seq gaps)", file=sys.stderr)

@@ -201,7 +201,9 @@ def test_cpu_split_gives_the_process_under_test_a_cpu_of_its_own() -> None:
     [
         (["--duration", "0"], "--duration must be > 0"),
         (["--rounds", "0"], "--rounds >= 1"),
-        (["--publish-hz", "0"], "--publish-hz must be > 0"),
+        (["--publish-hz", "0"], "--publish-hz must be 1..250"),
+        (["--publish-hz", "0.05"], "--publish-hz must be 1..250"),  # it slept 1000 s
+        (["--publish-hz", "nan"], "--publish-hz must be 1..250"),
     ],
 )
 def test_bad_settings_exit_2_before_measuring(argv: list[str], complaint: str) -> None:

@@ -215,3 +215,63 @@ def test_a_signal_aborts_and_writes_nothing(
     assert proc.returncode == 128 + sig, err
     assert f"lunad calibrate: {sig.name}: measurement aborted, nothing written" in err
     assert "amp_ref" not in out and cfg.read_text() == before
+
+
+def test_write_follows_a_symlinked_config(
+    device: Callable[..., PtyDevice], tmp_path: Path, helpers: Any
+) -> None:
+    """``--write`` through a link used to replace the link with a copy, leaving the file
+    it named, the maintained one, with the old amp_ref."""
+    dev = device(
+        rate_hz=250,
+        output_enabled=False,
+        model=RealisticSensor(),
+        truth=Truth(distance_m=2.0, reflectivity=0.9, angle_deg=0.0, lux=100.0),
+    )
+    (tmp_path / "repo").mkdir()
+    (tmp_path / "etc").mkdir()
+    real = tmp_path / "repo" / "front.toml"
+    real.write_text(f'[source]\ndevice = "{dev.path}"\n\n[filter]\namp_ref = 1234.0\n')
+    real.chmod(0o640)
+    link = tmp_path / "etc" / "front.toml"
+    link.symlink_to(Path("..") / "repo" / "front.toml")
+    r = subprocess.run(
+        write_amp_ref_argv(helpers, link, seconds="1"), capture_output=True, text=True, timeout=30
+    )
+    assert r.returncode == 0, r.stderr
+    assert link.is_symlink() and link.resolve() == real.resolve()
+    amp_ref = load_config(real).filter.to_filter_config().amp_ref
+    assert amp_ref == pytest.approx(AMP_REF, rel=0.03)
+    assert stat.S_IMODE(real.stat().st_mode) == 0o640
+    assert os.listdir(tmp_path / "etc") == ["front.toml"]
+    assert os.listdir(tmp_path / "repo") == ["front.toml"]
+
+
+@pytest.mark.parametrize(
+    ("flags", "line"),
+    [
+        (["--reflectivity", "1.5"], "--reflectivity must be above 0 and at most 1, got 1.5"),
+        (["--reflectivity", "0"], "--reflectivity must be above 0 and at most 1, got 0.0"),
+        (["--reflectivity", "nan"], "--reflectivity must be above 0 and at most 1, got nan"),
+        (["--distance", "0"], "--distance must be positive and finite (metres), got 0.0"),
+        (["--distance", "-2"], "--distance must be positive and finite (metres), got -2.0"),
+        (["--distance", "inf"], "--distance must be positive and finite (metres), got inf"),
+        (["--angle", "90"], "--angle must be at least 0 and below 90 degrees, got 90.0"),
+        (["--angle", "-10"], "--angle must be at least 0 and below 90 degrees, got -10.0"),
+        (["--seconds", "0"], "--seconds must be positive and finite, got 0.0"),
+        (["--seconds", "nan"], "--seconds must be positive and finite, got nan"),
+    ],
+)
+def test_bad_measurement_flags_are_refused_before_the_sensor_opens(
+    tmp_path: Path, helpers: Any, flags: list[str], line: str
+) -> None:
+    """``--reflectivity 1.5`` used to be refused only after ``--seconds`` of measuring
+    (exit 1), and ``--distance 0`` or ``-2`` was taken. No sensor here: the flags are
+    checked before one is opened, so the missing device is never reached."""
+    argv = [
+        *helpers.lunad, "calibrate", "--device", str(tmp_path / "no-sensor"),
+        "--reflectivity", "0.9", "--distance", "2", "--seconds", "60", *flags,
+    ]  # fmt: skip
+    r = subprocess.run(argv, capture_output=True, text=True, timeout=30)
+    assert r.returncode == 78, r.stderr
+    assert r.stderr == f"lunad calibrate: {line}\n" and r.stdout == ""

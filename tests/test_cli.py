@@ -1,13 +1,19 @@
-"""Every sub-command's --help runs in a subprocess and shows examples."""
+"""Every sub-command's --help runs in a subprocess and shows examples; flags that apply
+across a command's output modes do so in each."""
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
+from collections.abc import Callable
+from typing import Any
 
 import pytest
 
 from lunad.daemon.cli import SUBCOMMANDS, build_parser
+from lunad.protocol.client import Subscriber
+from lunad.sim.pty_device import PtyDevice
 
 LUNAD = [sys.executable, "-m", "lunad.daemon.cli"]
 COMMANDS = sorted(build_parser()._subparsers._group_actions[0].choices)  # type: ignore[union-attr]
@@ -22,3 +28,31 @@ def test_help(cmd: list[str]) -> None:
     r = subprocess.run([*LUNAD, *cmd, "--help"], capture_output=True, text=True, timeout=30)
     assert r.returncode == 0, r.stderr
     assert "example" in r.stdout
+
+
+@pytest.mark.parametrize("mode", [[], ["--json"]], ids=["lines", "json"])
+def test_watch_every_thins_each_output_mode(
+    device: Callable[..., PtyDevice],
+    start_daemon: Any,
+    endpoint: str,
+    subscriber: Subscriber,
+    helpers: Any,
+    mode: list[str],
+) -> None:
+    """``--every 10 --json`` used to print every reading; the lines thinned."""
+    dev = device(rate_hz=250, output_enabled=False)
+    start_daemon("--device", dev.path, "--publish", endpoint, "--rate", "250")
+    helpers.wait_for(subscriber, helpers.is_range, timeout=helpers.startup_s)
+    r = subprocess.run(
+        [*LUNAD, "watch", "--connect", endpoint, "--every", "10", "--count", "50", *mode],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode == 0, r.stderr
+    assert r.stderr.startswith("50 readings, ")
+    if mode:
+        readings = [m for m in map(json.loads, r.stdout.splitlines()) if "seq" in m]
+    else:
+        readings = [line for line in r.stdout.splitlines() if line.startswith("#")]
+    assert len(readings) == 5

@@ -1,8 +1,9 @@
-"""Bad command-line input to demo, sim and sweep: one line naming the flag, the project's
-exit code, and nothing started (no virtual sensor, no daemon)."""
+"""Bad command-line input to demo, sim, sweep and watch: one line naming the flag, the
+project's exit code, and nothing started (no virtual sensor, no daemon, no fit)."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 from pathlib import Path
 from typing import Any
@@ -123,3 +124,57 @@ def test_sweep_rejects_a_negative_seed(helpers: Any) -> None:
         "lunad sweep: error: argument --seed: expected a non-negative integer, got -1\n"
     )
     assert "Traceback" not in r.stderr and r.stdout == ""
+
+
+@pytest.mark.parametrize(
+    ("endpoint", "why"),
+    [
+        ("/run/lunad/front.sock", "Invalid argument"),
+        ("127.0.0.1:7781", "Invalid argument"),
+        ("tcp://localhost", "Invalid argument"),
+        ("tcp://127.0.0.1:99999", "the TCP port must be 1..65535"),
+        ("tcp://127.0.0.1:0", "the TCP port must be 1..65535"),
+    ],
+)
+def test_watch_rejects_an_endpoint_it_cannot_connect_to(
+    helpers: Any, endpoint: str, why: str
+) -> None:
+    """A path or a HOST:PORT without a scheme used to end in a ZMQError traceback, exit 1;
+    a port above 65535 was taken modulo 2**16 and watched, silently, the wrong port."""
+    r = run_lunad(helpers, "watch", "--connect", endpoint, "--duration", "1")
+    assert r.returncode == 2, r.stderr
+    assert r.stderr == (
+        f"lunad watch: --connect {endpoint!r}: {why}; expected tcp://HOST:PORT or ipc:///PATH\n"
+    )
+    assert r.stdout == ""
+
+
+@pytest.mark.parametrize(
+    "flags",
+    [
+        ["--format", "json"],
+        ["--plot", "figs"],
+        ["--readings", "200"],
+        ["--seed", "7"],
+        ["--profile", "calibrated"],
+        ["--profile", "both", "--plot", "figs"],
+    ],
+    ids=lambda f: " ".join(f),
+)
+def test_sweep_fit_refuses_the_sweep_options(
+    tmp_path: Path, helpers: Any, flags: list[str]
+) -> None:
+    """``--fit`` used to run the fit (about 15 s) and drop these without a word: no JSON,
+    no plots, the same fit whatever --seed or --readings said."""
+    r = subprocess.run(
+        [*helpers.lunad, "sweep", "--fit", *flags],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=tmp_path,
+    )
+    given = ", ".join(f for f in flags if f.startswith("--"))
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.startswith(f"lunad sweep: error: argument --fit: not allowed with {given} (")
+    assert r.stderr.count("\n") == 1 and r.stdout == ""
+    assert os.listdir(tmp_path) == []

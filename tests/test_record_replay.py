@@ -147,6 +147,45 @@ def test_lunad_record_command(
     assert p.stats.checksum_errors == 0
 
 
+def test_lunad_record_reconnects_when_the_start_up_commands_fail(
+    tmp_path: Path, helpers: Any
+) -> None:
+    """A ``socket://`` server (ser2net) that resets each connection at once: the
+    start-up commands' write fails. ``lunad record`` must treat that as a lost source,
+    as it does a failed read, and retry with backoff; it ended in a traceback, exit 1."""
+    import socket
+    import struct
+    import threading
+
+    server = socket.create_server(("127.0.0.1", 0))
+    port = server.getsockname()[1]
+    accepted = []
+
+    def reset_each() -> None:
+        while True:
+            try:
+                conn, _ = server.accept()
+            except OSError:
+                return
+            accepted.append(time.monotonic())
+            conn.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+            conn.close()  # RST: the client's next write fails with ECONNRESET
+
+    threading.Thread(target=reset_each, daemon=True).start()
+    out = tmp_path / "reset.lunarec"
+    try:
+        r = subprocess.run(
+            [*helpers.lunad, "record", "--device", f"socket://127.0.0.1:{port}",
+             "--out", str(out), "--duration", "3"],
+            capture_output=True, text=True, timeout=30,
+        )  # fmt: skip
+    finally:
+        server.close()
+    assert r.returncode == 0, r.stderr
+    assert "Traceback" not in r.stderr and "reconnecting" in r.stderr
+    assert 2 <= len(accepted) <= 10, accepted  # retried, with backoff (0.1 s doubling)
+
+
 def test_replay_of_a_missing_or_bad_file_is_a_config_error(tmp_path: Path, helpers: Any) -> None:
     bad = tmp_path / "bad.lunarec"
     bad.write_bytes(b"not a recording at all")
