@@ -36,6 +36,8 @@ from __future__ import annotations
 import math
 import os
 import sys
+from collections.abc import Callable
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -579,11 +581,13 @@ def run_serve_once(
     idle_settle_s: float = 1.5,
     idle_s: float = 3.0,
     pin: bool = False,
+    hold: Callable[[], AbstractContextManager[object]] = nullcontext,
 ) -> ServeRun:
     """One run: a fresh virtual sensor at 250 Hz in this process, ``variant``
     ('lunad' or 'floor') as a subprocess, and ``receiver_main`` as another, timing
     every message. ``pin``: the process under test on the last CPU, this process and
-    the receiver on the others (``cpu_split``)."""
+    the receiver on the others (``cpu_split``). ``hold``: a context that holds a
+    signal's interruption while the processes start (``cli.Interrupts.held``)."""
     import array
     import select
     import signal
@@ -608,30 +612,34 @@ def run_serve_once(
     if split is not None:
         os.sched_setaffinity(0, split[0])
     out_path = work / f"{tag}.recv"
-    receiver = subprocess.Popen(
-        [sys.executable, "-m", "lunad.daemon.bench", "receive", "--connect", endpoint,
-         "--out", str(out_path)],
-        stdout=subprocess.PIPE,
-    )  # fmt: skip
-    assert receiver.stdout is not None
-    dev = PtyDevice(
-        truth=Truth(2.0, 0.8, 10.0, 100.0),
-        rate_hz=SENSOR_HZ,
-        link=work / f"{tag}.tty",
-        output_enabled=False,
-        on_frame_sent=on_sent,
-    ).start()
     log_path = work / f"{tag}.log"
+    receiver: subprocess.Popen[bytes] | None = None
+    dev: PtyDevice | None = None
     proc = None
     try:
+        with hold():  # a signal now waits for the finally below, which stops them
+            receiver = subprocess.Popen(
+                [sys.executable, "-m", "lunad.daemon.bench", "receive", "--connect", endpoint,
+                 "--out", str(out_path)],
+                stdout=subprocess.PIPE,
+            )  # fmt: skip
+            dev = PtyDevice(
+                truth=Truth(2.0, 0.8, 10.0, 100.0),
+                rate_hz=SENSOR_HZ,
+                link=work / f"{tag}.tty",
+                output_enabled=False,
+                on_frame_sent=on_sent,
+            ).start()
+        assert receiver.stdout is not None
         with open(log_path, "wb") as log:
             t_spawn = time.monotonic_ns()
-            proc = subprocess.Popen(
-                serve_command(variant, dev.path, endpoint, publish_hz),
-                stdout=log,
-                stderr=subprocess.STDOUT,
-                env={**os.environ, "PYTHONUNBUFFERED": "1"},
-            )
+            with hold():
+                proc = subprocess.Popen(
+                    serve_command(variant, dev.path, endpoint, publish_hz),
+                    stdout=log,
+                    stderr=subprocess.STDOUT,
+                    env={**os.environ, "PYTHONUNBUFFERED": "1"},
+                )
             if split is not None:
                 os.sched_setaffinity(proc.pid, split[1])
             ready, _, _ = select.select([receiver.stdout], [], [], 15.0)
@@ -661,15 +669,18 @@ def run_serve_once(
         if proc is not None and proc.poll() is None:
             proc.kill()
             proc.wait()
-        receiver.terminate()
+        if receiver is not None:
+            receiver.terminate()
+            try:
+                receiver.wait(5.0)
+            except subprocess.TimeoutExpired:
+                receiver.kill()
+                receiver.wait()
+            if receiver.stdout is not None:
+                receiver.stdout.close()
         try:
-            receiver.wait(5.0)
-        except subprocess.TimeoutExpired:
-            receiver.kill()
-            receiver.wait()
-        receiver.stdout.close()
-        try:
-            dev.close()  # raises DeviceError if the virtual sensor died: the run is void
+            if dev is not None:
+                dev.close()  # raises DeviceError if the virtual sensor died: the run is void
         finally:
             os.sched_setaffinity(0, old_affinity)
     idle_window_s = (it1 - it0) / 1e9
@@ -758,10 +769,12 @@ def bench_serve(
     publish_hz: float = 50.0,
     progress: Any = None,
     pin: bool = False,
+    hold: Callable[[], AbstractContextManager[object]] = nullcontext,
 ) -> dict[str, ServeSummary]:
     """Alternate lunad (every frame), the floor and lunad ``--publish-hz`` for ``rounds``.
 
-    Returns summaries keyed 'lunad', 'floor' and 'lunad_hz'.
+    ``hold``: as in ``run_serve_once``. Returns summaries keyed 'lunad', 'floor' and
+    'lunad_hz'.
     """
     import tempfile
 
@@ -779,6 +792,7 @@ def bench_serve(
                     duration_s=duration_s,
                     idle_s=idle_s,
                     pin=pin,
+                    hold=hold,
                 )
                 runs[key].append(run)
                 if progress is not None:

@@ -9,10 +9,11 @@ start stay quick. Nothing is printed while parsing; diagnostics go to logging
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import logging
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 SUBCOMMANDS = (
     "lunad.daemon.cmd_serve",
@@ -78,31 +79,57 @@ def setup_logging(level: str = "info") -> None:
     logging.basicConfig(level=level.upper(), format=fmt, stream=sys.stderr, force=True)
 
 
-def interrupt_on(*signums: int) -> list[int]:
-    """Make these signals interrupt the main thread as Ctrl-C does (``KeyboardInterrupt``).
+class Interrupts:
+    """Signals that interrupt the main thread as Ctrl-C does (``KeyboardInterrupt``).
 
     For commands that start children or make temporary files (``demo``, ``bench``):
-    SIGTERM's default action ends the process at once, and its ``finally`` blocks,
-    which stop the children and remove the files, never run. The first signal
-    interrupts; the rest are ignored while those blocks clean up.
+    SIGTERM's default action ends the process at once, and the ``finally`` blocks that
+    stop the children and remove the files never run. The first signal interrupts; the
+    rest are ignored while those blocks clean up. Inside ``held()`` (starting a child
+    or a thread, before the ``try`` that stops it exists) the interruption waits until
+    the block ends, so nothing is started that nobody stops.
 
-    Returns:
-        The list the signal's number is appended to when it comes, so the command can
-        tell an interruption apart and exit 128 + that number, as the shell would.
+    Attributes:
+        got: the signal's number once one came; a command exits 128 + it, as a shell does.
     """
-    import signal
 
-    got: list[int] = []
+    def __init__(self, *signums: int) -> None:
+        import signal
 
-    def interrupt(signum: int, _frame: object) -> None:
-        got.append(signum)
-        for each in signums:
+        self.got: list[int] = []
+        self._signums = signums
+        self._held = 0
+        self._pending = False
+        for signum in signums:
+            signal.signal(signum, self._interrupt)
+
+    def _interrupt(self, signum: int, _frame: object) -> None:
+        import signal
+
+        self.got.append(signum)
+        for each in self._signums:
             signal.signal(each, signal.SIG_IGN)
-        raise KeyboardInterrupt
+        if self._held:
+            self._pending = True
+        else:
+            raise KeyboardInterrupt
 
-    for signum in signums:
-        signal.signal(signum, interrupt)
-    return got
+    @contextlib.contextmanager
+    def held(self) -> Iterator[None]:
+        """Hold an interruption until the block ends, then raise it."""
+        self._held += 1
+        try:
+            yield
+        finally:
+            self._held -= 1
+        if self._pending and not self._held:
+            self._pending = False
+            raise KeyboardInterrupt
+
+
+def interrupt_on(*signums: int) -> Interrupts:
+    """Make ``signums`` interrupt the main thread; see ``Interrupts``."""
+    return Interrupts(*signums)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

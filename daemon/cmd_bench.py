@@ -5,7 +5,10 @@ from __future__ import annotations
 import argparse
 import signal
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from lunad.daemon.cli import Interrupts
 
 DESCRIPTION = """\
 Measure lunad on this machine and print the figures.
@@ -107,16 +110,18 @@ def run(args: argparse.Namespace) -> int:
     if not 1 <= args.publish_hz <= bench.SENSOR_HZ:  # the pipeline sleeps 1/N a message
         print(f"lunad bench: --publish-hz must be 1..{bench.SENSOR_HZ}", file=sys.stderr)
         return 2
-    interrupted = interrupt_on(signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+    interrupts = interrupt_on(signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
     try:
-        return _run(args, quick, duration, rounds)
+        return _run(args, quick, duration, rounds, interrupts)
     except KeyboardInterrupt:  # every run's finally has stopped its processes by now
-        signum = interrupted[0] if interrupted else signal.SIGINT
+        signum = interrupts.got[0] if interrupts.got else signal.SIGINT
         print(f"lunad bench: stopped by {signal.Signals(signum).name}", file=sys.stderr)
         return 128 + signum
 
 
-def _run(args: argparse.Namespace, quick: bool, duration: float, rounds: int) -> int:
+def _run(
+    args: argparse.Namespace, quick: bool, duration: float, rounds: int, interrupts: Interrupts
+) -> int:
     """Every benchmark, then the figures; 0 when every run worked."""
     import dataclasses
     import json
@@ -141,6 +146,7 @@ def _run(args: argparse.Namespace, quick: bool, duration: float, rounds: int) ->
         publish_hz=args.publish_hz,
         progress=log.info,
         pin=bool(args.pin),
+        hold=interrupts.held,
     )
     lunad, floor, low = serve["lunad"], serve["floor"], serve["lunad_hz"]
     ratios = {

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from lunad.daemon.cli import Interrupts
     from lunad.sim.scenario import Scenario
 
 DESCRIPTION = """\
@@ -70,11 +71,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"lunad demo: --scenario: {exc}", file=sys.stderr)
         return 2
 
-    interrupted = interrupt_on(signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+    interrupts = interrupt_on(signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
     try:
-        return _run(args, scenario, interrupted)
+        return _run(args, scenario, interrupts)
     except KeyboardInterrupt:  # before the watcher started, or while stopping
-        return _interrupted(interrupted)
+        return _interrupted(interrupts.got)
 
 
 def _interrupted(signums: list[int]) -> int:
@@ -84,8 +85,12 @@ def _interrupted(signums: list[int]) -> int:
     return 128 + signum
 
 
-def _run(args: argparse.Namespace, scenario: Scenario, interrupted: list[int]) -> int:
-    """Sensor, daemon and watcher, until ``--duration`` or a signal."""
+def _run(args: argparse.Namespace, scenario: Scenario, interrupts: Interrupts) -> int:
+    """Sensor, daemon and watcher, until ``--duration`` or a signal.
+
+    The sensor and the daemon start under ``interrupts.held()``, so that a signal
+    arriving while either starts waits for the ``finally`` that stops it.
+    """
     from lunad.daemon.cmd_watch import watch
     from lunad.sim.physics import RealisticSensor
     from lunad.sim.pty_device import DeviceError, PtyDevice
@@ -103,7 +108,9 @@ def _run(args: argparse.Namespace, scenario: Scenario, interrupted: list[int]) -
             output_enabled=False,
         )
         try:
-            with dev:
+            try:
+                with interrupts.held():
+                    dev.start()
                 print(
                     f"virtual TF-Luna on {dev.path}: scenario {scenario.name} "
                     f"({scenario.description}), {args.rate} Hz, garbage before 2 % of frames"
@@ -123,28 +130,28 @@ def _run(args: argparse.Namespace, scenario: Scenario, interrupted: list[int]) -
                     str(args.rate),
                 ]
                 print("starting: lunad " + " ".join(cmd[3:]), flush=True)
-                daemon = subprocess.Popen(cmd, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+                daemon: subprocess.Popen[bytes] | None = None
+                quiet = threading.Timer(max(0.5, args.duration - 0.5), dev.pause, (3600.0,))
+                quiet.daemon = True  # an interrupted demo must not wait for it
                 try:
-                    quiet = threading.Timer(max(0.5, args.duration - 0.5), dev.pause, (3600.0,))
+                    with interrupts.held():
+                        daemon = subprocess.Popen(cmd, env={**os.environ, "PYTHONUNBUFFERED": "1"})
                     quiet.start()
                     seen = watch(endpoint, sys.stdout, every=args.every, duration=args.duration)
-                    quiet.cancel()
                 finally:
-                    daemon.send_signal(signal.SIGTERM)
+                    quiet.cancel()
                     t0 = time.monotonic()
-                    try:
-                        code = daemon.wait(timeout=5)
-                    except subprocess.TimeoutExpired:
-                        daemon.kill()
-                        code = daemon.wait()
+                    code = None if daemon is None else _stop(daemon)
                 stop_s = time.monotonic() - t0
                 sent = dev.frames_sent
                 junk = dev.garbage_bytes
+            finally:
+                dev.close()
         except DeviceError as exc:  # its thread died: the figures below would mean nothing
             print(f"lunad demo: {exc}", file=sys.stderr)
             return 1
-        if interrupted:  # the watcher took the Ctrl-C: frames were still coming
-            return _interrupted(interrupted)
+        if interrupts.got:  # the watcher took the Ctrl-C: frames were still coming
+            return _interrupted(interrupts.got)
         published = 0 if seen.last_seq is None else seen.last_seq + 1
         print(
             f"\nThe virtual sensor sent {sent} good frames and {junk} garbage bytes.\n"
@@ -153,3 +160,13 @@ def _run(args: argparse.Namespace, scenario: Scenario, interrupted: list[int]) -
             f"The daemon exited with code {code} {stop_s:.2f} s after SIGTERM."
         )
     return 0 if code == 0 and published == sent else 1
+
+
+def _stop(daemon: subprocess.Popen[bytes]) -> int:
+    """SIGTERM, as systemd stops it; killed after 5 s. Returns its exit code."""
+    daemon.send_signal(signal.SIGTERM)
+    try:
+        return daemon.wait(timeout=5)
+    except subprocess.TimeoutExpired:
+        daemon.kill()
+        return daemon.wait()

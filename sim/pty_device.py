@@ -197,7 +197,8 @@ class PtyDevice:
         self._stop = True
         self._wake()
         if self._thread is not None:
-            self._thread.join(timeout=2.0)
+            if self._thread.is_alive():  # not if ``start`` was interrupted before it ran
+                self._thread.join(timeout=2.0)
             self._thread = None
         with self._lock:
             self._close_pty()

@@ -106,3 +106,41 @@ def _processes_under(folder: Path) -> list[str]:
             if str(folder) in cmd:
                 found.append(cmd)
     return found
+
+
+def test_an_interruption_waits_for_the_end_of_a_held_block() -> None:
+    """A signal while a child or thread starts (``held``) interrupts at the end of the
+    block, inside the caller's ``try``, so the ``finally`` stops what was started; a
+    review's scan of SIGTERM delays found demo orphaning its daemon without this."""
+    from lunad.daemon.cli import Interrupts
+
+    before = {s: signal.getsignal(s) for s in (signal.SIGUSR1, signal.SIGUSR2)}
+    try:
+        interrupts = Interrupts(signal.SIGUSR1, signal.SIGUSR2)
+        started = stopped = False
+        with pytest.raises(KeyboardInterrupt):
+            try:
+                with interrupts.held():
+                    os.kill(os.getpid(), signal.SIGUSR1)  # arrives mid-start
+                    started = True
+                raise AssertionError("the held interruption was not raised")
+            finally:
+                stopped = started
+        assert started and stopped and interrupts.got == [signal.SIGUSR1]
+        assert signal.getsignal(signal.SIGUSR2) == signal.SIG_IGN  # later ones: ignored
+    finally:
+        for s, handler in before.items():
+            signal.signal(s, handler)
+
+
+def test_a_virtual_sensor_whose_start_was_interrupted_closes_cleanly() -> None:
+    """``start`` interrupted between making its thread and the thread running: ``close``
+    joined a thread never started (RuntimeError, a traceback out of ``lunad demo``)."""
+    import threading
+
+    from lunad.sim.pty_device import PtyDevice
+
+    dev = PtyDevice(output_enabled=False)
+    dev._thread = threading.Thread(target=lambda: None)  # made, not yet started
+    dev.close()
+    dev.close()
