@@ -126,10 +126,13 @@ class Interrupts:
             self._pending = False
             raise KeyboardInterrupt
 
+    def exit_code(self, prog: str) -> int:
+        """Say ``prog`` was stopped early; 128 + the signal's number, as a shell gives."""
+        import signal
 
-def interrupt_on(*signums: int) -> Interrupts:
-    """Make ``signums`` interrupt the main thread; see ``Interrupts``."""
-    return Interrupts(*signums)
+        signum = self.got[0] if self.got else signal.SIGINT
+        print(f"{prog}: stopped by {signal.Signals(signum).name}", file=sys.stderr)
+        return 128 + signum
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -99,7 +99,7 @@ def add_parser(sub: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run every benchmark and print the figures; 0 when every run worked."""
     from lunad.daemon import bench
-    from lunad.daemon.cli import interrupt_on
+    from lunad.daemon.cli import Interrupts
 
     quick = bool(args.quick)
     duration = args.duration if args.duration is not None else (2.0 if quick else 12.0)
@@ -110,13 +110,11 @@ def run(args: argparse.Namespace) -> int:
     if not 1 <= args.publish_hz <= bench.SENSOR_HZ:  # the pipeline sleeps 1/N a message
         print(f"lunad bench: --publish-hz must be 1..{bench.SENSOR_HZ}", file=sys.stderr)
         return 2
-    interrupts = interrupt_on(signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+    interrupts = Interrupts(signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
     try:
         return _run(args, quick, duration, rounds, interrupts)
     except KeyboardInterrupt:  # every run's finally has stopped its processes by now
-        signum = interrupts.got[0] if interrupts.got else signal.SIGINT
-        print(f"lunad bench: stopped by {signal.Signals(signum).name}", file=sys.stderr)
-        return 128 + signum
+        return interrupts.exit_code("lunad bench")
 
 
 def _run(

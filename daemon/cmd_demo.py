@@ -59,7 +59,7 @@ def add_parser(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the demo; 0 when the daemon published every frame the sensor sent."""
-    from lunad.daemon.cli import interrupt_on
+    from lunad.daemon.cli import Interrupts
     from lunad.sim.scenario import ScenarioError, load_scenario
 
     if args.every < 1:  # watch() divides by it, after the sensor and the daemon are up
@@ -71,18 +71,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"lunad demo: --scenario: {exc}", file=sys.stderr)
         return 2
 
-    interrupts = interrupt_on(signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+    interrupts = Interrupts(signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
     try:
         return _run(args, scenario, interrupts)
     except KeyboardInterrupt:  # before the watcher started, or while stopping
-        return _interrupted(interrupts.got)
-
-
-def _interrupted(signums: list[int]) -> int:
-    """Say the demo was cut short; 128 + the signal's number, as the shell would."""
-    signum = signums[0] if signums else signal.SIGINT
-    print(f"lunad demo: stopped by {signal.Signals(signum).name}", file=sys.stderr)
-    return 128 + signum
+        return interrupts.exit_code("lunad demo")
 
 
 def _run(args: argparse.Namespace, scenario: Scenario, interrupts: Interrupts) -> int:
@@ -151,7 +144,7 @@ def _run(args: argparse.Namespace, scenario: Scenario, interrupts: Interrupts) -
             print(f"lunad demo: {exc}", file=sys.stderr)
             return 1
         if interrupts.got:  # the watcher took the Ctrl-C: frames were still coming
-            return _interrupted(interrupts.got)
+            return interrupts.exit_code("lunad demo")
         published = 0 if seen.last_seq is None else seen.last_seq + 1
         print(
             f"\nThe virtual sensor sent {sent} good frames and {junk} garbage bytes.\n"

@@ -98,22 +98,6 @@ class EndpointError(ValueError):
     """``--connect`` names no endpoint a SUB socket can connect to; the message says why."""
 
 
-def _endpoint_problem(endpoint: str) -> str | None:
-    """Why ``endpoint`` is not worth connecting to, or None when it may be.
-
-    libzmq takes a TCP port above 65535 modulo 2**16 and port 0 without complaint, so
-    such an endpoint would wait, silently, on some other port; the rest (no scheme,
-    no port, a bind-only ``*``) libzmq itself refuses when the socket connects.
-    """
-    from lunad.daemon.config import PORT_MAX
-
-    if endpoint.startswith("tcp://"):
-        port = endpoint.rpartition(":")[2]
-        if port.isdigit() and not 1 <= int(port) <= PORT_MAX:
-            return f"the TCP port must be 1..{PORT_MAX}"
-    return None
-
-
 def _subscribe(endpoint: str, sensor: str | None) -> Subscriber:
     """A connected ``Subscriber``.
 
@@ -123,9 +107,10 @@ def _subscribe(endpoint: str, sensor: str | None) -> Subscriber:
     """
     import zmq
 
+    from lunad.daemon.config import tcp_port_problem
     from lunad.protocol.client import Subscriber
 
-    problem = _endpoint_problem(endpoint)
+    problem = tcp_port_problem(endpoint)  # the rest, libzmq refuses at connect
     if problem is None:
         try:
             return Subscriber(endpoint, sensor=sensor)

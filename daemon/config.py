@@ -171,13 +171,25 @@ class PublishSection(_Section):
     @field_validator("endpoint")
     @classmethod
     def _endpoint(cls, v: str) -> str:
-        m = _ENDPOINT_RE.match(v)
-        if not m:
+        if not _ENDPOINT_RE.match(v):
             raise ValueError("must look like tcp://HOST:PORT or ipc:///PATH")
-        port = m.group(2)
-        if port is not None and port != "*" and not 1 <= int(port) <= PORT_MAX:
-            raise ValueError(f"the TCP port must be 1..{PORT_MAX}")
+        problem = tcp_port_problem(v)
+        if problem is not None:
+            raise ValueError(problem)
         return v
+
+
+def tcp_port_problem(endpoint: str) -> str | None:
+    """What is wrong with a ``tcp://`` endpoint's port, or None.
+
+    libzmq takes a port above 65535 modulo 2**16, and 0 as "any", without complaint:
+    a daemon would publish, or a subscriber wait, silently on some other port.
+    """
+    if endpoint.startswith("tcp://"):
+        port = endpoint.rpartition(":")[2]
+        if port.isdigit() and not 1 <= int(port) <= PORT_MAX:
+            return f"the TCP port must be 1..{PORT_MAX}"
+    return None
 
 
 _KINDS = {bool: "true or false", int: "an integer", float: "a number", str: "a string"}
