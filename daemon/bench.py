@@ -212,8 +212,6 @@ class PipelineResult:
     filter_us: float
     encode_us: float
     total_us: float
-    reference_filter_us: float
-    """``ReferenceFilter``, the same filter composed from its pieces, on the same frames."""
     message_frames: int
     """Frames in one ``--publish-hz`` message (sensor rate / publish rate, rounded up)."""
     message_gap_s: float
@@ -356,7 +354,7 @@ def bench_pipeline(
     then ``messages`` pairs of ``--publish-hz`` messages (``bench_message``)."""
     import time
 
-    from lunad.filters import RangeFilter, ReferenceFilter
+    from lunad.filters import RangeFilter
     from lunad.protocol.frame import Frame
     from lunad.protocol.messages import encode_range, reasons_json
     from lunad.protocol.parser import FrameParser
@@ -376,11 +374,6 @@ def bench_pipeline(
     t0 = time.perf_counter()
     ests = [filt.step(f.distance_m, f.amp, f.t_mono_ns) for f in frames]
     filter_s = time.perf_counter() - t0
-    ref = ReferenceFilter()
-    t0 = time.perf_counter()
-    refs = [ref.step(f.distance_m, f.amp, f.t_mono_ns) for f in frames]
-    reference_s = time.perf_counter() - t0
-    del refs
 
     rcache: dict[tuple[str, ...], bytes] = {}
     t0 = time.perf_counter()
@@ -445,7 +438,6 @@ def bench_pipeline(
         filter_s * us,
         encode_s * us,
         total_s * us,
-        reference_s * us,
         per_message,
         1.0 / publish_hz,
         warm_us,

@@ -270,11 +270,6 @@ def render_table(
             "",
         ),
         (
-            "  filter composed from its pieces",
-            f"{pipe.reference_filter_us:.1f} us",
-            f"flat {pipe.filter_us / pipe.reference_filter_us:.2f}x of it",
-        ),
-        (
             f"  one --publish-hz {hz} message ({pipe.message_frames} frames)",
             f"{pipe.message_warm_us:.0f} / {pipe.message_cold_us:.0f} us",
             f"back to back / after {pipe.message_gap_s * 1e3:g} ms asleep",

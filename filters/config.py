@@ -63,21 +63,35 @@ class FilterConfig:
         k_m_per_lux: paper eq. 2 growth of the noise with ambient light, metres per lux.
         resolution_m: output quantisation of the sensor, metres; its variance
             resolution^2 / 12 is added to every reading's variance.
-        accel_psd: process noise of the constant-velocity model, the spectral
-            density of white acceleration, m^2/s^3. Tuned with ``lunad eval``.
+        accel_psd: process noise of the constant-velocity model while the target
+            holds its course, the spectral density of white acceleration, m^2/s^3:
+            small, so that a still target is averaged like a mean (``lunad eval``).
+        manoeuvre_accel_psd: the process noise while the manoeuvre test fires,
+            m^2/s^3: a robot braking at 10 m/s^2 is followed within a few frames.
+        manoeuvre_sigmas: the manoeuvre test's threshold, in standard deviations of
+            the innovations' running mean.
+        manoeuvre_frames: readings the innovations' running mean spans (its
+            mean square spans three times as many). In frames, not seconds: a
+            test's power depends on how many readings it has seen.
+        cover_frames: readings over which the innovations' excess power is added
+            to the published sigma (a lag the filter cannot see in its own P).
         init_speed_sigma_m_s: one-sigma prior on the target's speed when a track
             starts, metres per second.
         gate_sigmas: innovation gate; a reading whose innovation exceeds this many
             predicted sigmas is an ``outlier``.
         step_confirm: this many consecutive outliers that agree with each other are
             a real step: the track restarts there.
-        lux_tau_s: time constant of the lux estimator, seconds (converges within
-            about 4 tau).
-        lux_zone_tau_s: time constant of the slower lux average that the zone and
-            ``high_ambient`` use, seconds (they describe conditions, not frames).
-        lux_clip_sigmas: residuals beyond this many predicted sigmas are clipped
-            before they enter the lux estimator (robustness to spikes).
-        lux_init: ambient light assumed when a track starts, lux.
+        noise_frames: readings the fast noise average spans (noise.py): it follows
+            a cloud or a lamp.
+        noise_slow_frames: readings the slow noise average spans: the one the
+            filter, ``lux_est``, the zone and ``high_ambient`` use.
+        noise_jump_ratio: when the fast and slow averages part by more than this
+            factor the light has changed and the slow one restarts from the fast.
+        noise_clip_sigmas: second differences beyond this many of their own
+            standard deviations are clipped before they count (steps, spikes).
+        lux_observable_sigma_m: below this reading noise, metres, the 1 cm output
+            steps hide the light and ``lux_est`` is null.
+        lux_init: ambient light assumed before the noise is measured, lux.
         sigma_floor_m: the published sigma never goes below this, metres: the 1 cm
             output steps leave a bias no averaging removes (resolution / sqrt(12)).
         hysteresis: relative band around the amp, S and ambient-lux thresholds: a
@@ -105,13 +119,19 @@ class FilterConfig:
     sigma0_m: float = SIGMA0_DEFAULT_M
     k_m_per_lux: float = K_DEFAULT_M_PER_LUX
     resolution_m: float = RESOLUTION_M
-    accel_psd: float = 0.5
+    accel_psd: float = 1e-4
+    manoeuvre_accel_psd: float = 5.0
+    manoeuvre_sigmas: float = 3.0
+    manoeuvre_frames: int = 10
+    cover_frames: int = 5
     init_speed_sigma_m_s: float = 1.0
     gate_sigmas: float = 4.0
     step_confirm: int = 2
-    lux_tau_s: float = 0.1
-    lux_zone_tau_s: float = 1.0
-    lux_clip_sigmas: float = 2.5
+    noise_frames: int = 25
+    noise_slow_frames: int = 250
+    noise_jump_ratio: float = 1.7
+    noise_clip_sigmas: float = 2.5
+    lux_observable_sigma_m: float = 0.003
     lux_init: float = 0.0
     sigma_floor_m: float = 0.002
     hysteresis: float = 0.1
@@ -150,6 +170,13 @@ class FilterConfig:
             raise ValueError("FilterConfig.min_range_m must be below max_range_m")
         if self.step_confirm < 1:
             raise ValueError("FilterConfig.step_confirm must be at least 1")
+        for name in ("manoeuvre_frames", "cover_frames", "noise_frames", "noise_slow_frames"):
+            if getattr(self, name) < 2:
+                raise ValueError(f"FilterConfig.{name} must be at least 2 readings")
+        if self.noise_jump_ratio <= 1.0:
+            raise ValueError(
+                f"FilterConfig.noise_jump_ratio must be above 1, got {self.noise_jump_ratio!r}"
+            )
         for name in ("hysteresis", "zone_hysteresis"):
             if getattr(self, name) >= 1.0:
                 raise ValueError(

@@ -1,18 +1,30 @@
-"""The per-frame cleaning pipeline the daemon runs, as one flat function.
+"""The per-frame cleaning pipeline the daemon runs: gates, noise, tracker, sigma, zone.
 
-It computes exactly what ``ReferenceFilter`` (reference.py) computes from the
-documented pieces: the gates with hysteresis (policy.py), the constant-velocity
-Kalman filter with its innovation gate and step confirmation (kalman.py) and the lux
-estimator (lux.py) are inlined; the zone is zone.py's own ``ZoneClassifier``. Read
-those modules for the model and the paper's equations. tests/test_filters_equivalence.py
-checks that both filters give equal estimates, float for float, on every built-in
-scenario at three noise scales, in all three noise modes, and on arbitrary streams.
+How this works, per frame (DESIGN.md "Data flow of one reading"; docs/filter.md has the
+evidence for each choice):
 
-Why flat: every frame pays for this at 250 Hz, and a call per piece plus the hops
-between five objects cost about an eighth of it. One function holding the state on one
-object took 0.84-0.90x the time of the composed form (three scenarios, two runs;
-``lunad bench`` prints the ratio, line "filter composed from its pieces";
-docs/performance.md, "Session 4").
+1. S = amp / amp_ref (paper eq. 1, amp_ref from ``lunad calibrate``).
+2. Hard gates with hysteresis (policy.py) -> ``dropout``. A reading inside a
+   hysteresis band, or a little beyond the range, still feeds the filter.
+3. The noise: c = sigma0 + k L (paper eq. 2) measured from the second differences of
+   the raw readings (noise.py), which smooth motion and steps do not move. The
+   reading's variance is r = c^2 / S^2 + q (paper eq. 3, q the 1 cm steps), and
+   L_hat = (c - sigma0) / k is published where the noise is above the output step.
+4. A constant-velocity Kalman filter whose process noise adapts to manoeuvres: it
+   runs at ``accel_psd`` (nearly still: it averages a still target like a mean)
+   until the innovations carry a bias that their own spread cannot explain (a
+   self-normalised test over ``manoeuvre_frames``: mean^2 > T^2 (1 - rho) / (1 + rho)
+   times the mean square), then at ``manoeuvre_accel_psd`` while the bias lasts.
+   An innovation beyond ``gate_sigmas`` is an ``outlier``; ``step_confirm`` outliers
+   that agree with each other restart the track at them (a step).
+5. The published sigma is honest about what the filter cannot see: sqrt(P00) plus the
+   excess of the recent innovations' power over their predicted variance (a lag, a
+   start of motion), and on an outlier frame it covers the disagreement with the
+   reading. ``stale`` when nothing was accepted for ``stale_after_s``.
+6. Zone (zone.py) from L_hat (0 where unobservable), S and the published sigma.
+
+One implementation, flat: every frame pays for this at 250 Hz on a Pi Zero 2, and a
+call per piece would cost about an eighth more; ``lunad bench`` prints the cost.
 """
 
 from __future__ import annotations
@@ -21,10 +33,25 @@ from math import sqrt
 
 from lunad.filters.config import AMP_AMBIENT, AMP_SATURATED, FilterConfig
 from lunad.filters.estimate import Estimate, Reason, Status, Zone
-from lunad.filters.kalman import RUN_GAP_MAX
-from lunad.filters.lux import PRED_SKIP_RATIO, WEIGHT_GROWTH_MAX, LuxConstants
+from lunad.filters.noise import GAP_NORMALISERS, MAX_GAP_FRAMES, winsorised_abs_mean
 from lunad.filters.policy import band_edge, first_amp_at_least
 from lunad.filters.zone import ZoneClassifier
+
+RUN_GAP_MAX = 2
+"""Frames that do not feed the filter (no distance, a weak or saturated signal) that may
+sit between two outliers of one run: a marginal target, weak every other frame, still
+confirms its step; two spikes 0.3 s apart, dropouts between them, stay two spikes."""
+
+NOISE_MIN_SAMPLES = 10
+"""Second differences seen before ``lux_est`` is published (our choice: 40 ms at 250 Hz;
+before that the estimate is the configured prior)."""
+
+COVER_MIN = 2.0
+"""The innovations' recent power, in units of its predicted variance, above which the
+excess is added to the published sigma (our choice, by ``lunad eval``: at 1 the
+sampling scatter of a still target inflated sigma until 2 sigma covered over 99 % of
+frames; at 2 a lag of a manoeuvre's onset is still covered).
+"""
 
 _SATURATED = (Reason.SATURATED,)
 _AMBIENT = (Reason.HIGH_AMBIENT,)
@@ -47,38 +74,45 @@ _new = tuple.__new__
 class RangeFilter:
     """Turns raw readings into published estimates; pure, one call per frame.
 
-    Not thread-safe: one instance per sensor, called from the read loop. The state
-    has the names of the pieces it comes from (``x``, ``p00``: kalman.py; ``c2``,
-    ``lux``: lux.py; ``weak``: policy.py); the zone keeps its ``ZoneClassifier``, one
-    call a published frame either way.
+    Not thread-safe: one instance per sensor, called from the read loop. State:
+    ``x``, ``v``, ``p00``, ``p01``, ``p11`` (the track: metres, m/s and their
+    covariance), ``noise_fast`` and ``noise_slow`` (the noise statistic A of
+    noise.py, metres), ``c2`` (c^2 from the slow one, m^2), ``lux`` (L_hat, lux, or
+    None where it cannot be observed), ``qa`` (the process noise in force, m^2/s^3),
+    ``weak``/``out_of_range``/``ambient`` (policy.py's latches).
     """
 
     __slots__ = (
         "_amp_strong",
         "_amp_strong_again",
         "_c2_floor",
-        "_c2_init",
-        "_clip2",
+        "_clip_a",
         "_confirm",
+        "_cover_keep",
+        "_fast_keep",
         "_floor",
+        "_gap",
+        "_gap_prev",
         "_gate2",
-        "_have_lux",
-        "_inv_amp_ref",
-        "_inv_kappa",
+        "_jump",
         "_k",
+        "_kA",
         "_last_accept_ns",
         "_last_t_ns",
-        "_lux_dt",
         "_lux_enter",
         "_lux_exit",
-        "_lux_init",
+        "_m1",
+        "_man_keep",
         "_max_feed",
         "_max_in",
         "_max_m",
         "_min_in",
         "_min_m",
+        "_obs2",
+        "_pow_keep",
         "_q_m2",
-        "_qa",
+        "_qa_hi",
+        "_qa_lo",
         "_run_gap",
         "_run_last",
         "_run_n",
@@ -87,21 +121,29 @@ class RangeFilter:
         "_run_sign",
         "_run_sum",
         "_sigma0",
+        "_slow_keep",
         "_stale_ns",
-        "_tau_s",
-        "_tau_zone_s",
+        "_thr2",
         "_v0var",
+        "_z1",
+        "_z2",
         "active",
         "ambient",
         "c2",
-        "c2_zone",
         "config",
+        "cover",
+        "inv_amp_ref",
         "lux",
-        "lux_zone",
+        "man_mean",
+        "man_power",
+        "noise_fast",
+        "noise_n",
+        "noise_slow",
         "out_of_range",
         "p00",
         "p01",
         "p11",
+        "qa",
         "v",
         "weak",
         "x",
@@ -111,13 +153,13 @@ class RangeFilter:
     def __init__(self, config: FilterConfig | None = None) -> None:
         self.config = c = config or FilterConfig()
         h = c.hysteresis
-        self._inv_amp_ref = inv_amp_ref = 1.0 / c.amp_ref
+        self.inv_amp_ref = inv_amp_ref = 1.0 / c.amp_ref
         self._q_m2 = c.resolution_m * c.resolution_m / 12.0
         self._stale_ns = round(c.stale_after_s * 1e9)
         self._floor = c.sigma_floor_m
         self._min_m = c.min_range_m
         self._max_m = c.max_range_m
-        # policy.py
+        # Gates (policy.py).
         self._amp_strong = first_amp_at_least(c.amp_min, c.s_min, inv_amp_ref)
         self._amp_strong_again = first_amp_at_least(
             band_edge(c.amp_min, h), band_edge(c.s_min, h), inv_amp_ref
@@ -127,75 +169,70 @@ class RangeFilter:
         self._max_feed = c.max_range_m + c.range_feed_margin_m
         self._lux_enter = c.lux_high_ambient
         self._lux_exit = c.lux_high_ambient * (1.0 - h)
-        # kalman.py
-        self._qa = c.accel_psd
+        # Tracker.
+        self._qa_lo = c.accel_psd
+        self._qa_hi = max(c.manoeuvre_accel_psd, c.accel_psd)
         self._gate2 = c.gate_sigmas * c.gate_sigmas
         self._confirm = c.step_confirm
         self._v0var = c.init_speed_sigma_m_s * c.init_speed_sigma_m_s
-        # lux.py
+        self._man_keep = 1.0 - 1.0 / c.manoeuvre_frames
+        self._pow_keep = 1.0 - 1.0 / (3.0 * c.manoeuvre_frames)
+        rho = self._man_keep
+        self._thr2 = c.manoeuvre_sigmas * c.manoeuvre_sigmas * (1.0 - rho) / (1.0 + rho)
+        self._cover_keep = 1.0 - 1.0 / c.cover_frames
+        # Noise (noise.py).
         self._sigma0 = c.sigma0_m
         self._k = c.k_m_per_lux
-        self._tau_s = c.lux_tau_s
-        self._tau_zone_s = c.lux_zone_tau_s
-        lux = LuxConstants.of(c)
-        self._clip2 = lux.clip2
-        self._inv_kappa = lux.inv_kappa
-        self._c2_init = lux.c2_init
-        self._lux_init = lux.lux_init
-        self._c2_floor = lux.c2_floor
+        m1 = winsorised_abs_mean(c.noise_clip_sigmas)
+        self._m1 = m1
+        self._clip_a = c.noise_clip_sigmas / m1
+        self._kA = 1.0 / (6.0 * m1 * m1)
+        self._fast_keep = 1.0 / c.noise_frames
+        self._slow_keep = 1.0 / c.noise_slow_frames
+        self._jump = c.noise_jump_ratio
+        self._obs2 = c.lux_observable_sigma_m * c.lux_observable_sigma_m
+        self._c2_floor = 0.01 * c.sigma0_m * c.sigma0_m
         self.zones = ZoneClassifier(c)
         self.reset()
 
     def reset(self) -> None:
         """Forget all state (after a reconnect)."""
+        c = self.config
         self.weak = self.out_of_range = self.ambient = False
         self.active = False
         self.x = self.v = self.p00 = self.p01 = self.p11 = 0.0
+        self.qa = self._qa_lo
+        self.man_mean = 0.0
+        self.man_power = self.cover = 1.0
         self._run_n = 0
         self._run_sum = self._run_rsum = self._run_last = self._run_r = 0.0
         self._run_sign = False
         self._run_gap = 0
-        self.c2 = self.c2_zone = self._c2_init
-        self.lux = self.lux_zone = self._lux_init
-        self._lux_dt = float("inf")
+        c0 = c.sigma0_m + c.k_m_per_lux * c.lux_init
+        self.c2 = c0 * c0
+        self.noise_fast = self.noise_slow = 0.0
+        self.noise_n = 0
+        self.lux: float | None = None
+        self._z1: float | None = None
+        self._z2: float | None = None
+        self._gap = self._gap_prev = 0
         self.zones.reset()
         self._last_t_ns: int | None = None
         self._last_accept_ns = 0
-        self._have_lux = False
 
-    def step_known_sigma(
-        self, raw_m: float | None, amp: int, t_mono_ns: int, sigma_m: float
-    ) -> Estimate:
-        """Like :meth:`step`, with the reading's noise given instead of estimated.
-
-        For baselines (a fixed-noise filter, an oracle that knows the simulator's
-        true per-reading sigma): the same gates, Kalman filter and step logic, only
-        the measurement variance differs. ``sigma_m`` excludes the quantisation,
-        which is added as in :meth:`step`. The lux estimator is not updated.
-
-        Raises:
-            ValueError: ``sigma_m`` is not above 0 (``step`` reads 0 as "estimate it").
-        """
-        if not sigma_m > 0.0:
-            raise ValueError(f"sigma_m must be above 0 metres, got {sigma_m!r}")
-        return self.step(raw_m, amp, t_mono_ns, sigma_m)
-
-    def step(
-        self, raw_m: float | None, amp: int, t_mono_ns: int, sigma_known: float = 0.0
-    ) -> Estimate:
+    def step(self, raw_m: float | None, amp: int, t_mono_ns: int) -> Estimate:
         """Clean one reading.
 
         Args:
             raw_m: distance the sensor reported, metres, or None when it reported none.
             amp: the sensor's signal strength.
             t_mono_ns: monotonic receive time, nanoseconds.
-            sigma_known: leave at 0 (the noise is estimated); see ``step_known_sigma``.
 
         Returns:
             The estimate to publish for this frame.
         """
         t = t_mono_ns
-        s = amp * self._inv_amp_ref
+        s = amp * self.inv_amp_ref
         last = self._last_t_ns
         if last is None:
             self._last_t_ns = self._last_accept_ns = t
@@ -234,63 +271,31 @@ class RangeFilter:
                 else:
                     reasons = _OUT if out else _NONE
 
-        outlier = False
+        outlier_e = 0.0
         active = self.active
         if z is not None:
-            q = self._q_m2
+            self._noise(z, s)
             c2 = self.c2
-            r = (sigma_known * sigma_known if sigma_known > 0.0 else c2 / (s * s)) + q
+            r = c2 / (s * s) + self._q_m2
             if active and t - self._last_accept_ns <= self._stale_ns:
-                # Predict (kalman.py: Tracker.predict).
                 x = self.x
                 p00 = self.p00
                 if dt > 0.0:
                     p01 = self.p01
                     p11 = self.p11
-                    qd = self._qa * dt
+                    qd = self.qa * dt
                     x += self.v * dt
                     p00 += dt * (2.0 * p01 + dt * p11) + qd * dt * dt * (1.0 / 3.0)
                     self.p01 = p01 + dt * p11 + 0.5 * qd * dt
                     self.p11 = p11 + qd
                 e = z - x
-                # Lux estimate (lux.py: LuxEstimator.update).
-                if sigma_known <= 0.0:
-                    if dt > 0.0 and p00 <= PRED_SKIP_RATIO * r:
-                        s2 = s * s
-                        e2 = e * e
-                        lim = self._clip2 * (p00 + c2 / s2 + q)
-                        if e2 > lim:
-                            e2 = lim
-                        sample = (e2 * self._inv_kappa - p00 - q) * s2
-                        c2_floor = self._c2_floor
-                        w = WEIGHT_GROWTH_MAX * self._lux_dt
-                        if dt < w:
-                            w = dt
-                        self._lux_dt = w
-                        a = w / self._tau_s
-                        c2 += (a if a < 0.5 else 0.5) * (sample - c2)
-                        if c2 < c2_floor:
-                            c2 = c2_floor
-                        self.c2 = c2
-                        lux = (sqrt(c2) - self._sigma0) / self._k
-                        self.lux = lux if lux > 0.0 else 0.0
-                        c2 = self.c2_zone
-                        a = w / self._tau_zone_s
-                        c2 += (a if a < 0.5 else 0.5) * (sample - c2)
-                        if c2 < c2_floor:
-                            c2 = c2_floor
-                        self.c2_zone = c2
-                        lux = (sqrt(c2) - self._sigma0) / self._k
-                        self.lux_zone = lux if lux > 0.0 else 0.0
-                    self._have_lux = True
-                # Update, gate and step confirmation (kalman.py: Tracker.update).
                 sp = p00 + r
-                gate2 = self._gate2
-                if e * e > gate2 * sp:
+                e2 = e * e
+                if e2 > self._gate2 * sp:
                     sign = e > 0.0
                     d = z - self._run_last
                     n = self._run_n
-                    if n and sign == self._run_sign and d * d <= gate2 * (r + self._run_r):
+                    if n and sign == self._run_sign and d * d <= self._gate2 * (r + self._run_r):
                         n += 1
                         self._run_sum += z
                         self._run_rsum += r
@@ -309,7 +314,7 @@ class RangeFilter:
                         self._run_n = n
                         self.x = x
                         self.p00 = p00
-                        outlier = True
+                        outlier_e = e
                 else:
                     self._run_n = 0
                     p01 = self.p01
@@ -319,59 +324,120 @@ class RangeFilter:
                     self.v += k1 * e
                     self.p00 = p00 - k0 * p00
                     p11 = self.p11 - k1 * p01
-                    if p11 < 0.0:  # kalman.py: Tracker.update
+                    if p11 < 0.0:  # float rounding at extreme settings
                         self.p01 = self.p11 = 0.0
                     else:
                         self.p01 = p01 - k0 * p01
                         self.p11 = p11
                     self._last_accept_ns = t
+                    # Manoeuvre test: a bias in the innovations that their spread
+                    # cannot explain switches the process noise up while it lasts.
+                    keep = self._man_keep
+                    mean = self.man_mean = keep * self.man_mean + (1.0 - keep) * e
+                    keep = self._pow_keep
+                    power = self.man_power = keep * self.man_power + (1.0 - keep) * e2
+                    self.qa = self._qa_hi if mean * mean > self._thr2 * power else self._qa_lo
+                    keep = self._cover_keep
+                    self.cover = keep * self.cover + (1.0 - keep) * e2 / sp
             else:
                 self._start(z, r)
                 self._last_accept_ns = t
-        elif active:
-            if self._run_n:  # kalman.py: Tracker.skip
-                gap = self._run_gap + 1
-                self._run_gap = gap
-                if gap > RUN_GAP_MAX:
-                    self._run_n = 0
-            if dt > 0.0:
-                self._predict(dt)
+        else:
+            self._gap += 1
+            if active:
+                if self._run_n:
+                    gap = self._run_gap + 1
+                    self._run_gap = gap
+                    if gap > RUN_GAP_MAX:
+                        self._run_n = 0
+                if dt > 0.0:
+                    self._predict(dt)
 
-        # Publish or not (ReferenceFilter.step), ambient flag and zone.
+        # Publish or not, ambient flag and zone.
         if not reasons and self.active:
             x = self.x
             if self._min_m <= x <= self._max_m:
-                sigma = sqrt(self.p00)
+                var = self.p00
+                if outlier_e:
+                    var += 0.25 * outlier_e * outlier_e
+                elif self.cover > COVER_MIN:
+                    var += (self.cover - 1.0) * (var + self.c2 / (s * s) + self._q_m2)
+                sigma = sqrt(var)
                 if sigma < self._floor:
                     sigma = self._floor
-                if self._have_lux:
-                    lux_out: float | None = self.lux
-                    lux_zone = self.lux_zone
-                    if self.ambient:
-                        ambient = self.ambient = lux_zone > self._lux_exit
-                    else:
-                        ambient = self.ambient = lux_zone > self._lux_enter
-                else:
-                    lux_out = None
+                lux = self.lux
+                if lux is None:
+                    ambient = self.ambient = False
                     lux_zone = 0.0
-                    ambient = False
-                zone = self.zones.classify(lux_zone, s, sigma)
-                if outlier:
+                else:
+                    lux_zone = lux
+                    if self.ambient:
+                        ambient = self.ambient = lux > self._lux_exit
+                    else:
+                        ambient = self.ambient = lux > self._lux_enter
+                if outlier_e:  # the zone describes conditions: the track's own sigma
+                    zone = self.zones.classify(lux_zone, s, max(sqrt(self.p00), self._floor))
+                else:
+                    zone = self.zones.classify(lux_zone, s, sigma)
+                if outlier_e:
                     reasons = _OUTLIER_AMBIENT if ambient else _OUTLIER
                 elif ambient:
                     reasons = _AMBIENT
                 else:
-                    return _new(Estimate, (x, sigma, lux_out, s, _OK, _NONE, zone))
-                return _new(Estimate, (x, sigma, lux_out, s, _DEGRADED, reasons, zone))
+                    return _new(Estimate, (x, sigma, lux, s, _OK, _NONE, zone))
+                return _new(Estimate, (x, sigma, lux, s, _DEGRADED, reasons, zone))
             reasons = _OUT
         self.zones.zone = _UNRELIABLE
         if t - self._last_accept_ns > self._stale_ns:
             reasons = (*reasons, Reason.STALE) if reasons else _STALE
-        lux_out = self.lux if self._have_lux else None
-        return _new(Estimate, (None, None, lux_out, s, _DROPOUT, reasons, _UNRELIABLE))
+        return _new(Estimate, (None, None, self.lux, s, _DROPOUT, reasons, _UNRELIABLE))
+
+    def _noise(self, z: float, s: float) -> None:
+        """Learn the noise from one reading that feeds the filter (noise.py)."""
+        g1 = self._gap + 1
+        self._gap = 0
+        z1 = self._z1
+        z2 = self._z2
+        if z1 is None or g1 > MAX_GAP_FRAMES:
+            self._z2 = None
+        else:
+            self._z2 = z1
+            if z2 is not None:
+                g2 = self._gap_prev
+                if g1 == 1 and g2 == 1:
+                    d = z - 2.0 * z1 + z2
+                else:
+                    d = ((z - z1) / g1 - (z1 - z2) / g2) * GAP_NORMALISERS[g1][g2]
+                y = (d if d >= 0.0 else -d) * s
+                fast = self.noise_fast
+                if fast == 0.0:  # the first sample: start from the configured prior
+                    fast = self._m1 * sqrt(6.0 * (self.c2 + self._q_m2 * s * s))
+                    self.noise_slow = fast
+                lim = self._clip_a * fast
+                if y > lim:
+                    y = lim
+                fast += self._fast_keep * (y - fast)
+                self.noise_fast = fast
+                slow = self.noise_slow
+                slow += self._slow_keep * (y - slow)
+                if fast > self._jump * slow or slow > self._jump * fast:
+                    slow = fast  # the light changed: start the slow average again
+                self.noise_slow = slow
+                self.noise_n += 1
+                c2 = slow * slow * self._kA - self._q_m2 * s * s
+                if c2 < self._obs2 * s * s:  # below the output step: not observable
+                    self.lux = None
+                    self.c2 = c2 if c2 > self._c2_floor else self._c2_floor
+                else:
+                    self.c2 = c2
+                    if self.noise_n >= NOISE_MIN_SAMPLES:
+                        lux = (sqrt(c2) - self._sigma0) / self._k
+                        self.lux = lux if lux > 0.0 else 0.0
+        self._z1 = z
+        self._gap_prev = g1
 
     def _start(self, z_m: float, r_m2: float) -> None:
-        """Begin a track at ``z_m`` (variance ``r_m2``) with unknown speed (Tracker.start)."""
+        """Begin a track at ``z_m`` (variance ``r_m2``) with unknown speed."""
         self.active = True
         self.x = z_m
         self.v = 0.0
@@ -379,12 +445,16 @@ class RangeFilter:
         self.p01 = 0.0
         self.p11 = self._v0var
         self._run_n = 0
+        self.qa = self._qa_lo
+        self.man_mean = 0.0
+        self.man_power = r_m2
+        self.cover = 1.0
 
     def _predict(self, dt_s: float) -> None:
-        """Move the state ``dt_s`` (> 0) seconds ahead without a reading (Tracker.predict)."""
+        """Move the state ``dt_s`` (> 0) seconds ahead without a reading."""
         p01 = self.p01
         p11 = self.p11
-        q = self._qa * dt_s
+        q = self.qa * dt_s
         self.x += self.v * dt_s
         self.p00 += dt_s * (2.0 * p01 + dt_s * p11) + q * dt_s * dt_s * (1.0 / 3.0)
         self.p01 = p01 + dt_s * p11 + 0.5 * q * dt_s

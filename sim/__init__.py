@@ -1,5 +1,18 @@
-"""Virtual TF-Luna: sensor physics, scenarios, a pty device, the paper sweep."""
+"""Virtual TF-Luna: sensor physics (two worlds), scenarios, a pty device, the paper
+sweep, and the independent oracle ``lunad eval`` judges the filter against."""
 
-from lunad.sim.physics import AMP_REF, PaperSensor, RawReading, Truth
+from lunad.sim.oracle import OracleKalman, run_oracle, tuned_oracle
+from lunad.sim.physics import AMP_REF, PaperSensor, RawReading, RealisticSensor, Truth
+from lunad.sim.shot_noise import ShotNoiseSensor
 
-__all__ = ["AMP_REF", "PaperSensor", "RawReading", "Truth"]
+__all__ = [
+    "AMP_REF",
+    "OracleKalman",
+    "PaperSensor",
+    "RawReading",
+    "RealisticSensor",
+    "ShotNoiseSensor",
+    "Truth",
+    "run_oracle",
+    "tuned_oracle",
+]

@@ -36,7 +36,7 @@ def test_quick_json_has_every_figure(capsys: Any) -> None:
     doc = json.loads(out)
     assert doc["bulk"]["same_as_streaming"] is True
     assert doc["bulk"]["bulk_fps"] > 0
-    assert doc["pipeline"]["total_us"] > 0 and doc["pipeline"]["reference_filter_us"] > 0
+    assert doc["pipeline"]["total_us"] > 0 and doc["pipeline"]["filter_us"] > 0
     assert doc["pipeline"]["message_frames"] == 5  # 250 Hz / --publish-hz 50
     assert doc["pipeline"]["message_warm_us"] > 0 and doc["pipeline"]["message_cold_us"] > 0
     for key in ("lunad", "floor", "lunad_hz"):
@@ -59,7 +59,7 @@ def test_quick_json_has_every_figure(capsys: Any) -> None:
 
 def test_table_renders_every_line() -> None:
     b = bench.BulkResult(10, 90, 3e6, 2e5, True)
-    p = bench.PipelineResult(10, 1.0, 2.0, 3.0, 6.0, 2.5, 5, 0.02, 40.0, 160.0)
+    p = bench.PipelineResult(10, 1.0, 2.0, 3.0, 6.0, 5, 0.02, 40.0, 160.0)
 
     def summary(variant: str, hz: float | None, p99_us: float = 600.0) -> bench.ServeSummary:
         return bench.ServeSummary(variant, hz, 1, 100.0, 2.5, 300.0, p99_us, 0.04, 1.0, 50.0, 0.5)

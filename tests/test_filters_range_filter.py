@@ -11,7 +11,6 @@ from lunad.filters import (
     FilterConfig,
     RangeFilter,
     Reason,
-    ReferenceFilter,
     Status,
     Zone,
 )
@@ -50,7 +49,11 @@ def test_good_readings_give_plain_float_estimates() -> None:
     assert type(last.range_m) is float and type(last.sigma_m) is float
     assert last.range_m == pytest.approx(2.0, abs=0.01)
     assert last.zone is Zone.STABLE
-    assert last.lux_est is not None and last.lux_est < 10_000
+    # at S = 0.9 in the dark the noise (4.4 mm) is near the 1 cm output step: lux may
+    # be unobservable; on a darker target it is measured, and indoor
+    assert last.lux_est is None or last.lux_est < 10_000
+    dim = feed(RangeFilter(), noisy(random.Random(0), 2.0, 500, 300), 500)[-1]
+    assert dim.lux_est is not None and dim.lux_est < 10_000
 
 
 def test_isolated_spike_is_degraded_outlier_showing_the_prediction() -> None:
@@ -110,24 +113,20 @@ def test_sigma_is_honest_on_a_static_target(amp: int, lux: float) -> None:
             if e.range_m is not None:
                 total += 1
                 inside += abs(e.range_m - 2.345) <= 2 * e.sigma_m
-    assert 0.90 <= inside / total <= 0.995
+    assert inside / total >= 0.90
+    if amp < 1800:  # at amp 1800 the sigma floor (1 cm steps' bias) covers every frame
+        assert inside / total <= 0.995
 
 
-@pytest.mark.parametrize("make", [RangeFilter, ReferenceFilter])
-def test_a_gap_in_the_frames_does_not_read_as_sunlight(
-    make: type[RangeFilter] | type[ReferenceFilter],
-) -> None:
+def test_a_gap_in_the_frames_does_not_read_as_sunlight() -> None:
     """Frames lost for 0.1 s once a second (a sensor hiccup, a loose wire, I2C
-    retries), 100 lux. The first residual after a gap mostly measures the prediction's
-    own error. Learnt from with the gap's weight (dt / tau, capped at 0.5), an unlucky
-    one put L_hat above the 20 klux of ``high_ambient``: after 3 of these 145 gaps
-    (29.8 klux at worst) before ``PRED_SKIP_RATIO`` and ``WEIGHT_GROWTH_MAX``; 7.7 klux
-    at worst since (with the skip alone, too)."""
+    retries), 100 lux: the noise is measured from the readings on either side of a
+    gap, never across it, so the lux estimate stays indoor."""
     amp, lux = 1576, 100.0  # S = 0.79, the daemon tests' target
     worst = 0.0
     for seed in range(5):
         rng = random.Random(seed)
-        flt = make()
+        flt = RangeFilter()
         t = 0
         for k, z in enumerate(noisy(rng, 2.0, amp, 30 * 250, lux)):
             t += FRAME_NS if k % 250 else 25 * FRAME_NS
@@ -143,15 +142,11 @@ def test_a_gap_in_the_frames_does_not_read_as_sunlight(
     ids=["rare-long", "frequent-short"],
 )
 def test_stalls_and_gaps_never_throw_the_estimate_off(every: int, gaps_ms: tuple[int, ...]) -> None:
-    """The paper profile's noise (2.5 cm at S = 0.79 and 100 lux, read as ~60 klux) read
-    the way the daemon reads it: each frame a little after it was sent, one frame in
-    ``every`` followed by a gap from the sensor and one by a stall of the reader, which
-    then reads the backlog; a read's frames stamped a frame period apart, as
-    ``Daemon._read_each`` does. 20 runs of 30 s. Estimates off by more than 15 cm
-    (worst) in session 7, stamped alike: 16 (58.3 cm) rare-long, 146 (40.2 cm)
-    frequent-short; with these stamps and ``PRED_SKIP_RATIO``: 0 (7.6 cm) and 11
-    (57.4 cm); with ``WEIGHT_GROWTH_MAX`` too: 0 (7.6 cm) and 0 (5.3 cm)
-    (docs/filter.md, "Gaps and stalls")."""
+    """The paper profile's noise (2.5 cm at S = 0.79 and 100 lux) read the way the
+    daemon reads it: each frame a little after it was sent, one frame in ``every``
+    followed by a gap from the sensor and one by a stall of the reader, which then reads
+    the backlog; a read's frames stamped a frame period apart, as the daemon stamps
+    them. 20 runs of 30 s: no estimate more than 15 cm off."""
     from lunad.sim.physics import PaperSensor, Truth
 
     truth = Truth(2.0, 0.8, 10.0, 100.0)
@@ -185,14 +180,6 @@ def test_stalls_and_gaps_never_throw_the_estimate_off(every: int, gaps_ms: tuple
     assert worst < 0.15
 
 
-def test_known_sigma_sets_the_measurement_noise() -> None:
-    small, large = RangeFilter(), RangeFilter()
-    for k in range(20):
-        a = small.step_known_sigma(2.0, 1800, k * FRAME_NS, 0.005)
-        b = large.step_known_sigma(2.0, 1800, k * FRAME_NS, 0.05)
-    assert a.sigma_m < b.sigma_m
-
-
 def test_reset_forgets_everything() -> None:
     zs = noisy(random.Random(5), 2.0, 900, 100)
     flt = RangeFilter()
@@ -209,15 +196,12 @@ def test_config_rejects_nonsense_naming_the_field() -> None:
 
 
 @pytest.mark.parametrize("between", [(None, 60), (3.0, 60), (9.5, 1500)])
-@pytest.mark.parametrize("cls", [RangeFilter, ReferenceFilter])
-def test_spikes_apart_do_not_confirm_a_step(
-    cls: type[RangeFilter], between: tuple[float | None, int]
-) -> None:
+def test_spikes_apart_do_not_confirm_a_step(between: tuple[float | None, int]) -> None:
     """Only consecutive outliers confirm a step (docs/filter.md). Two spikes with
     frames between them that do not feed the filter (no distance, a weak signal,
     beyond the range) are two spikes: a repeated multipath return 1.5 m too far once
     passed as a step and was published as ``ok``."""
-    flt = cls()
+    flt = RangeFilter()
     feed(flt, noisy(random.Random(4), 2.0, 1800, 200), 1800)
     k = 200
     assert flt.step(3.50, 1800, k * FRAME_NS).reasons == (Reason.OUTLIER,)
@@ -230,12 +214,11 @@ def test_spikes_apart_do_not_confirm_a_step(
     assert flt.step(2.0, 1800, 277 * FRAME_NS).status is Status.OK
 
 
-@pytest.mark.parametrize("cls", [RangeFilter, ReferenceFilter])
-def test_a_step_to_a_marginal_target_is_still_followed(cls: type[RangeFilter]) -> None:
+def test_a_step_to_a_marginal_target_is_still_followed() -> None:
     """Frames that do not feed the filter end a run of outliers only past RUN_GAP_MAX of
     them: a step to a target weak every other frame (amp 140, 80, 140, ...) must be
     followed within a few frames. Ending the run at any such frame took 204 frames."""
-    flt = cls()
+    flt = RangeFilter()
     rng = random.Random(8)
     feed(flt, noisy(rng, 2.0, 1800, 200), 1800)
     out = []
@@ -248,8 +231,7 @@ def test_a_step_to_a_marginal_target_is_still_followed(cls: type[RangeFilter]) -
     assert out.index(followed[0]) <= 4
 
 
-@pytest.mark.parametrize("cls", [RangeFilter, ReferenceFilter])
-def test_a_clock_that_starts_again_starts_the_filter_afresh(cls: type[RangeFilter]) -> None:
+def test_a_clock_that_starts_again_starts_the_filter_afresh() -> None:
     """A recording appended to after a reboot restarts its monotonic clock (record.py);
     the daemon that recorded it then started with a fresh filter, so a replay must
     too. Taking the first frames after the reboot as at the old clock's last time froze
@@ -258,20 +240,19 @@ def test_a_clock_that_starts_again_starts_the_filter_afresh(cls: type[RangeFilte
     rng = random.Random(9)
     before = noisy(rng, 2.0, 1800, 250)
     after = noisy(rng, 6.0, 900, 100)
-    flt = cls()
+    flt = RangeFilter()
     feed(flt, before, 1800, k0=900_000)  # an hour of uptime, at 250 Hz
     replayed = feed(flt, after, 900, k0=1250)  # 5 s after boot
-    assert replayed == feed(cls(), after, 900, k0=1250)
+    assert replayed == feed(RangeFilter(), after, 900, k0=1250)
     assert replayed[0].range_m == pytest.approx(6.0, abs=0.1)
 
 
-@pytest.mark.parametrize("cls", [RangeFilter, ReferenceFilter])
-def test_a_frame_stamped_early_does_not_count_its_time_twice(cls: type[RangeFilter]) -> None:
+def test_a_frame_stamped_early_does_not_count_its_time_twice() -> None:
     """A read's frames are stamped a frame period apart ending at the read, so a sensor
     faster than ``--rate`` stamps some before the frame ahead of them. The next
     frame's prediction must cover only the time that passed; it covered the
     backward jump a second time, and a target receding at 1 m/s came out 10 cm off."""
-    flt = cls()
+    flt = RangeFilter()
     rng = random.Random(6)
     worst = 0.0
     for k in range(600):
@@ -284,26 +265,17 @@ def test_a_frame_stamped_early_does_not_count_its_time_twice(cls: type[RangeFilt
     assert worst < 0.03
 
 
-@pytest.mark.parametrize("cls", [RangeFilter, ReferenceFilter])
-def test_rounding_never_makes_the_covariance_negative(cls: type[RangeFilter]) -> None:
+def test_rounding_never_makes_the_covariance_negative() -> None:
     """A valid but extreme config (a tiny measurement variance next to a huge speed
     prior) cancelled p11 below 0 in floats; the next frame's sqrt then raised and
     would have ended the daemon."""
     cfg = FilterConfig(resolution_m=1e-6, init_speed_sigma_m_s=1000.0, amp_ref=1.0, accel_psd=0.0)
-    flt = cls(cfg)
+    flt = RangeFilter(cfg)
     t = 0
     for dt in (0, 300_000_000, *[FRAME_NS] * 20):  # a first gap, then 250 Hz
         t += dt
         est = flt.step(2.0, 2000, t)
         assert est.sigma_m is not None and est.sigma_m >= 0.0
-
-
-@pytest.mark.parametrize("cls", [RangeFilter, ReferenceFilter])
-def test_known_sigma_must_be_positive(cls: type[RangeFilter]) -> None:
-    """``step`` reads a sigma of 0 as "estimate it", so ``step_known_sigma(..., 0)``
-    estimated the noise and moved the lux estimate, against its docstring."""
-    with pytest.raises(ValueError, match="sigma_m"):
-        cls().step_known_sigma(2.0, 1800, 0, 0.0)
 
 
 @pytest.mark.parametrize(

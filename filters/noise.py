@@ -1,0 +1,79 @@
+"""The reading noise, measured from the readings themselves: the constants and the maths.
+
+How this works. Paper eqs 2-3 give one reading the noise sigma = c / S with
+c = sigma0 + k L (metres at S = 1). lunad measures c from a statistic of the raw
+readings that smooth motion does not move: the second difference of consecutive
+readings,
+
+    d2 = z - 2 z1 + z2,        var(d2) = 6 (sigma^2 + q)   for white noise,
+
+where q = resolution^2 / 12 is the 1 cm output step's variance (Sheppard's
+correction, which holds once the noise or the motion dithers the steps). A target
+moving at 3 m/s and accelerating at 10 m/s^2 moves d2 by a dt^2 = 0.16 mm at 250 Hz,
+against the 5-15 mm that the noise puts there, so the tracking filter's manoeuvres,
+lag and steps do not enter. The filter's innovations would carry all of them: a
+noise estimate learnt from them reads a robot's motion as sunlight.
+
+The statistic is the mean of |d2| S (S of the newest reading), winsorised at
+``clip`` times its own current value over the mean of a clipped normal: a step (two
+samples of the step's size) or a multipath spike (three) moves it by a bounded
+amount, and the robust mean is what remains. For a normal d2 with standard deviation
+sd, E[min(|d2|, C sd)] = m1(C) sd, so the average A gives
+
+    sigma_d2 = A / m1,    c^2 + q S^2 = A^2 / (6 m1^2),
+
+and L_hat = (c - sigma0) / k, the paper's eq. 2 inverted. Two averages run side by
+side: a fast one (``noise_frames``) that follows a cloud or a lamp, and a slow one
+(``noise_slow_frames``) whose scatter is small enough for a lux figure; when the two
+part by more than ``noise_jump_ratio`` the light has changed and the slow one starts
+again from the fast one.
+
+A reading that does not feed the filter (weak, saturated, no distance) breaks the
+chain; up to ``MAX_GAP_FRAMES - 1`` missing frames are bridged with the divided
+difference (z - z1) / g1 - (z1 - z2) / g2 over frame counts g1 and g2, normalised to
+the same variance (``gap_normaliser``). Frame counts, not timestamps: the sensor
+samples at a fixed rate, the read times jitter.
+
+Where the noise is below the output step (a strong, close return: sigma under
+``lux_observable_sigma_m``), the readings repeat the same centimetre and say nothing
+about the light: the estimate is then not published (``lux_est`` null), and the
+reading's variance is the step's own, q.
+"""
+
+from __future__ import annotations
+
+import math
+
+MAX_GAP_FRAMES = 3
+"""Frame counts between the readings of one second difference: 1 (consecutive) up to
+this many (two frames missing between them). Longer gaps break the chain: a target may
+have moved on."""
+
+
+def winsorised_abs_mean(clip_sigmas: float) -> float:
+    """m1(C) = E[min(|Z|, C)] for standard normal Z: the mean absolute value of a
+    standard normal sample clipped at ``clip_sigmas``."""
+    c = clip_sigmas
+    tail = math.erfc(c / math.sqrt(2.0))  # P(|Z| > c)
+    return math.sqrt(2.0 / math.pi) * (1.0 - math.exp(-0.5 * c * c)) + c * tail
+
+
+def gap_normaliser(g1: int, g2: int) -> float:
+    """Factor that gives the divided second difference over frame counts ``g1`` (newest
+    pair) and ``g2`` the variance 6 sigma^2 of a plain one: sqrt(6 / (1/g1^2 +
+    (1/g1 + 1/g2)^2 + 1/g2^2)); 1 for g1 = g2 = 1."""
+    var = 1.0 / (g1 * g1) + (1.0 / g1 + 1.0 / g2) ** 2 + 1.0 / (g2 * g2)
+    return math.sqrt(6.0 / var)
+
+
+GAP_NORMALISERS: tuple[tuple[float, ...], ...] = tuple(
+    tuple(gap_normaliser(g1, g2) if g1 and g2 else 0.0 for g2 in range(MAX_GAP_FRAMES + 1))
+    for g1 in range(MAX_GAP_FRAMES + 1)
+)
+"""``gap_normaliser(g1, g2)`` looked up as ``GAP_NORMALISERS[g1][g2]`` (index 0 unused)."""
+
+
+def lux_of(c_m: float, sigma0_m: float, k_m_per_lux: float) -> float:
+    """L_hat = (c - sigma0) / k in lux, clipped at 0 (paper eq. 2 inverted)."""
+    lux = (c_m - sigma0_m) / k_m_per_lux
+    return lux if lux > 0.0 else 0.0
