@@ -70,11 +70,11 @@ class FilterConfig:
             m^2/s^3: a robot braking at 10 m/s^2 is followed within a few frames.
         manoeuvre_sigmas: the manoeuvre test's threshold, in standard deviations of
             the innovations' running mean.
-        manoeuvre_frames: readings the innovations' running mean spans (its
-            mean square spans three times as many). In frames, not seconds: a
-            test's power depends on how many readings it has seen.
-        cover_frames: readings over which the innovations' excess power is added
-            to the published sigma (a lag the filter cannot see in its own P).
+        manoeuvre_frames: readings the innovations' fast running mean spans (the
+            slow one, and their mean square, span five times as many); also how
+            long the raised process noise is held after the test last fired. In
+            frames, not seconds: a test's power depends on how many readings it
+            has seen.
         init_speed_sigma_m_s: one-sigma prior on the target's speed when a track
             starts, metres per second.
         gate_sigmas: innovation gate; a reading whose innovation exceeds this many
@@ -123,7 +123,6 @@ class FilterConfig:
     manoeuvre_accel_psd: float = 5.0
     manoeuvre_sigmas: float = 3.0
     manoeuvre_frames: int = 10
-    cover_frames: int = 5
     init_speed_sigma_m_s: float = 1.0
     gate_sigmas: float = 4.0
     step_confirm: int = 2
@@ -170,7 +169,7 @@ class FilterConfig:
             raise ValueError("FilterConfig.min_range_m must be below max_range_m")
         if self.step_confirm < 1:
             raise ValueError("FilterConfig.step_confirm must be at least 1")
-        for name in ("manoeuvre_frames", "cover_frames", "noise_frames", "noise_slow_frames"):
+        for name in ("manoeuvre_frames", "noise_frames", "noise_slow_frames"):
             if getattr(self, name) < 2:
                 raise ValueError(f"FilterConfig.{name} must be at least 2 readings")
         if self.noise_jump_ratio <= 1.0:

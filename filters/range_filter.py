@@ -12,15 +12,20 @@ evidence for each choice):
    L_hat = (c - sigma0) / k is published where the noise is above the output step.
 4. A constant-velocity Kalman filter whose process noise adapts to manoeuvres: it
    runs at ``accel_psd`` (nearly still: it averages a still target like a mean)
-   until the innovations carry a bias that their own spread cannot explain (a
-   self-normalised test over ``manoeuvre_frames``: mean^2 > T^2 (1 - rho) / (1 + rho)
-   times the mean square), then at ``manoeuvre_accel_psd`` while the bias lasts.
+   until the innovations carry a bias that their own spread cannot explain, then at
+   ``manoeuvre_accel_psd`` for ``manoeuvre_frames`` more readings (and for as many
+   after a track starts, its speed unknown). The test is self-normalised: a running
+   mean m of the innovations over N readings fires when
+   m^2 > T^2 (1 - rho) / (1 + rho) times their mean square (rho = 1 - 1/N), once
+   with N = ``manoeuvre_frames`` (a sudden manoeuvre) and once with five times as
+   many (a small lag that a noisy reading hides).
    An innovation beyond ``gate_sigmas`` is an ``outlier``; ``step_confirm`` outliers
    that agree with each other restart the track at them (a step).
-5. The published sigma is honest about what the filter cannot see: sqrt(P00) plus the
-   excess of the recent innovations' power over their predicted variance (a lag, a
-   start of motion), and on an outlier frame it covers the disagreement with the
-   reading. ``stale`` when nothing was accepted for ``stale_after_s``.
+5. The published sigma is honest about what P cannot see: sqrt(P00) plus, for each
+   running mean, the part of m^2 that its own scatter (1 - rho) / (1 + rho) times
+   the mean square does not explain: a bias of the track (a lag, a start of
+   motion). On an outlier frame it covers the disagreement with the reading.
+   ``stale`` when nothing was accepted for ``stale_after_s``.
 6. Zone (zone.py) from L_hat (0 where unobservable), S and the published sigma.
 
 One implementation, flat: every frame pays for this at 250 Hz on a Pi Zero 2, and a
@@ -42,16 +47,10 @@ RUN_GAP_MAX = 2
 sit between two outliers of one run: a marginal target, weak every other frame, still
 confirms its step; two spikes 0.3 s apart, dropouts between them, stay two spikes."""
 
-NOISE_MIN_SAMPLES = 10
-"""Second differences seen before ``lux_est`` is published (our choice: 40 ms at 250 Hz;
-before that the estimate is the configured prior)."""
-
-COVER_MIN = 2.0
-"""The innovations' recent power, in units of its predicted variance, above which the
-excess is added to the published sigma (our choice, by ``lunad eval``: at 1 the
-sampling scatter of a still target inflated sigma until 2 sigma covered over 99 % of
-frames; at 2 a lag of a manoeuvre's onset is still covered).
-"""
+DRIFT_SPAN = 5
+"""The slow innovation mean (``drift``) spans this many times ``manoeuvre_frames``
+readings: it sees a bias too small for the fast test (a third of a noisy reading's
+sigma, left behind by a manoeuvre) and widens sigma by it."""
 
 _SATURATED = (Reason.SATURATED,)
 _AMBIENT = (Reason.HIGH_AMBIENT,)
@@ -88,28 +87,32 @@ class RangeFilter:
         "_c2_floor",
         "_clip_a",
         "_confirm",
-        "_cover_keep",
+        "_drift_gain",
+        "_drift_noise",
+        "_drift_thr2",
         "_fast_keep",
         "_floor",
         "_gap",
         "_gap_prev",
         "_gate2",
+        "_hold",
+        "_hold_frames",
+        "_inv_k",
         "_jump",
-        "_k",
         "_kA",
         "_last_accept_ns",
         "_last_t_ns",
         "_lux_enter",
         "_lux_exit",
         "_m1",
-        "_man_keep",
+        "_man_gain",
+        "_man_noise",
         "_max_feed",
         "_max_in",
         "_max_m",
         "_min_in",
         "_min_m",
         "_obs2",
-        "_pow_keep",
         "_q_m2",
         "_qa_hi",
         "_qa_lo",
@@ -131,13 +134,13 @@ class RangeFilter:
         "ambient",
         "c2",
         "config",
-        "cover",
+        "drift",
+        "extra",
         "inv_amp_ref",
         "lux",
         "man_mean",
         "man_power",
         "noise_fast",
-        "noise_n",
         "noise_slow",
         "out_of_range",
         "p00",
@@ -175,14 +178,18 @@ class RangeFilter:
         self._gate2 = c.gate_sigmas * c.gate_sigmas
         self._confirm = c.step_confirm
         self._v0var = c.init_speed_sigma_m_s * c.init_speed_sigma_m_s
-        self._man_keep = 1.0 - 1.0 / c.manoeuvre_frames
-        self._pow_keep = 1.0 - 1.0 / (3.0 * c.manoeuvre_frames)
-        rho = self._man_keep
-        self._thr2 = c.manoeuvre_sigmas * c.manoeuvre_sigmas * (1.0 - rho) / (1.0 + rho)
-        self._cover_keep = 1.0 - 1.0 / c.cover_frames
+        rho = 1.0 - 1.0 / c.manoeuvre_frames
+        self._man_gain = 1.0 - rho
+        self._man_noise = (1.0 - rho) / (1.0 + rho)
+        self._thr2 = c.manoeuvre_sigmas * c.manoeuvre_sigmas * self._man_noise
+        rho = 1.0 - 1.0 / (DRIFT_SPAN * c.manoeuvre_frames)
+        self._drift_gain = 1.0 - rho
+        self._drift_noise = (1.0 - rho) / (1.0 + rho)
+        self._drift_thr2 = c.manoeuvre_sigmas * c.manoeuvre_sigmas * self._drift_noise
+        self._hold_frames = c.manoeuvre_frames
         # Noise (noise.py).
         self._sigma0 = c.sigma0_m
-        self._k = c.k_m_per_lux
+        self._inv_k = 1.0 / c.k_m_per_lux
         m1 = winsorised_abs_mean(c.noise_clip_sigmas)
         self._m1 = m1
         self._clip_a = c.noise_clip_sigmas / m1
@@ -202,8 +209,9 @@ class RangeFilter:
         self.active = False
         self.x = self.v = self.p00 = self.p01 = self.p11 = 0.0
         self.qa = self._qa_lo
-        self.man_mean = 0.0
-        self.man_power = self.cover = 1.0
+        self._hold = 0
+        self.man_mean = self.drift = self.extra = 0.0
+        self.man_power = 1.0
         self._run_n = 0
         self._run_sum = self._run_rsum = self._run_last = self._run_r = 0.0
         self._run_sign = False
@@ -211,7 +219,6 @@ class RangeFilter:
         c0 = c.sigma0_m + c.k_m_per_lux * c.lux_init
         self.c2 = c0 * c0
         self.noise_fast = self.noise_slow = 0.0
-        self.noise_n = 0
         self.lux: float | None = None
         self._z1: float | None = None
         self._z2: float | None = None
@@ -274,9 +281,48 @@ class RangeFilter:
         outlier_e = 0.0
         active = self.active
         if z is not None:
-            self._noise(z, s)
-            c2 = self.c2
-            r = c2 / (s * s) + self._q_m2
+            # The noise, from the second differences of the raw readings (noise.py).
+            s2 = s * s
+            g1 = self._gap + 1
+            self._gap = 0
+            z1 = self._z1
+            z2 = self._z2
+            if z1 is None or g1 > MAX_GAP_FRAMES:
+                self._z2 = None
+            else:
+                self._z2 = z1
+                if z2 is not None:
+                    g2 = self._gap_prev
+                    if g1 == 1 and g2 == 1:
+                        d = z - 2.0 * z1 + z2
+                    else:
+                        d = ((z - z1) / g1 - (z1 - z2) / g2) * GAP_NORMALISERS[g1][g2]
+                    y = (d if d >= 0.0 else -d) * s
+                    fast = self.noise_fast
+                    if fast == 0.0:  # the first sample: start from the configured prior
+                        fast = self._m1 * sqrt(6.0 * (self.c2 + self._q_m2 * s2))
+                        self.noise_slow = fast
+                    lim = self._clip_a * fast
+                    if y > lim:
+                        y = lim
+                    fast += self._fast_keep * (y - fast)
+                    self.noise_fast = fast
+                    slow = self.noise_slow
+                    slow += self._slow_keep * (y - slow)
+                    if fast > self._jump * slow or slow > self._jump * fast:
+                        slow = fast  # the light changed: start the slow average again
+                    self.noise_slow = slow
+                    c2 = slow * slow * self._kA - self._q_m2 * s2
+                    if c2 < self._obs2 * s2:  # below the output step: not observable
+                        self.lux = None
+                        self.c2 = c2 if c2 > self._c2_floor else self._c2_floor
+                    else:
+                        self.c2 = c2
+                        lux = (sqrt(c2) - self._sigma0) * self._inv_k
+                        self.lux = lux if lux > 0.0 else 0.0
+            self._z1 = z
+            self._gap_prev = g1
+            r = self.c2 / s2 + self._q_m2
             if active and t - self._last_accept_ns <= self._stale_ns:
                 x = self.x
                 p00 = self.p00
@@ -316,7 +362,8 @@ class RangeFilter:
                         self.p00 = p00
                         outlier_e = e
                 else:
-                    self._run_n = 0
+                    if self._run_n:
+                        self._run_n = 0
                     p01 = self.p01
                     k0 = p00 / sp
                     k1 = p01 / sp
@@ -332,13 +379,31 @@ class RangeFilter:
                     self._last_accept_ns = t
                     # Manoeuvre test: a bias in the innovations that their spread
                     # cannot explain switches the process noise up while it lasts.
-                    keep = self._man_keep
-                    mean = self.man_mean = keep * self.man_mean + (1.0 - keep) * e
-                    keep = self._pow_keep
-                    power = self.man_power = keep * self.man_power + (1.0 - keep) * e2
-                    self.qa = self._qa_hi if mean * mean > self._thr2 * power else self._qa_lo
-                    keep = self._cover_keep
-                    self.cover = keep * self.cover + (1.0 - keep) * e2 / sp
+                    mean = self.man_mean
+                    mean += self._man_gain * (e - mean)
+                    self.man_mean = mean
+                    drift = self.drift
+                    drift += self._drift_gain * (e - drift)
+                    self.drift = drift
+                    power = self.man_power
+                    power += self._drift_gain * (e2 - power)
+                    self.man_power = power
+                    mean2 = mean * mean
+                    drift2 = drift * drift
+                    if mean2 > self._thr2 * power or drift2 > self._drift_thr2 * power:
+                        self._hold = self._hold_frames
+                        self.qa = self._qa_hi
+                    elif self._hold:  # a manoeuvre lasts: hold, as for a fresh track
+                        hold = self._hold - 1
+                        self._hold = hold
+                        if not hold:
+                            self.qa = self._qa_lo
+                    # What P cannot see: the part of the innovations' running means
+                    # that their own scatter does not explain is a bias of the track.
+                    excess = mean2 - self._man_noise * power
+                    extra = excess if excess > 0.0 else 0.0
+                    excess = drift2 - self._drift_noise * power
+                    self.extra = extra + excess if excess > 0.0 else extra
             else:
                 self._start(z, r)
                 self._last_accept_ns = t
@@ -360,21 +425,21 @@ class RangeFilter:
                 var = self.p00
                 if outlier_e:
                     var += 0.25 * outlier_e * outlier_e
-                elif self.cover > COVER_MIN:
-                    var += (self.cover - 1.0) * (var + self.c2 / (s * s) + self._q_m2)
+                else:
+                    var += self.extra
                 sigma = sqrt(var)
                 if sigma < self._floor:
                     sigma = self._floor
-                lux = self.lux
-                if lux is None:
+                lux_out = self.lux
+                if lux_out is None:
                     ambient = self.ambient = False
                     lux_zone = 0.0
                 else:
-                    lux_zone = lux
+                    lux_zone = lux_out
                     if self.ambient:
-                        ambient = self.ambient = lux > self._lux_exit
+                        ambient = self.ambient = lux_out > self._lux_exit
                     else:
-                        ambient = self.ambient = lux > self._lux_enter
+                        ambient = self.ambient = lux_out > self._lux_enter
                 if outlier_e:  # the zone describes conditions: the track's own sigma
                     zone = self.zones.classify(lux_zone, s, max(sqrt(self.p00), self._floor))
                 else:
@@ -384,57 +449,13 @@ class RangeFilter:
                 elif ambient:
                     reasons = _AMBIENT
                 else:
-                    return _new(Estimate, (x, sigma, lux, s, _OK, _NONE, zone))
-                return _new(Estimate, (x, sigma, lux, s, _DEGRADED, reasons, zone))
+                    return _new(Estimate, (x, sigma, lux_out, s, _OK, _NONE, zone))
+                return _new(Estimate, (x, sigma, lux_out, s, _DEGRADED, reasons, zone))
             reasons = _OUT
         self.zones.zone = _UNRELIABLE
         if t - self._last_accept_ns > self._stale_ns:
             reasons = (*reasons, Reason.STALE) if reasons else _STALE
         return _new(Estimate, (None, None, self.lux, s, _DROPOUT, reasons, _UNRELIABLE))
-
-    def _noise(self, z: float, s: float) -> None:
-        """Learn the noise from one reading that feeds the filter (noise.py)."""
-        g1 = self._gap + 1
-        self._gap = 0
-        z1 = self._z1
-        z2 = self._z2
-        if z1 is None or g1 > MAX_GAP_FRAMES:
-            self._z2 = None
-        else:
-            self._z2 = z1
-            if z2 is not None:
-                g2 = self._gap_prev
-                if g1 == 1 and g2 == 1:
-                    d = z - 2.0 * z1 + z2
-                else:
-                    d = ((z - z1) / g1 - (z1 - z2) / g2) * GAP_NORMALISERS[g1][g2]
-                y = (d if d >= 0.0 else -d) * s
-                fast = self.noise_fast
-                if fast == 0.0:  # the first sample: start from the configured prior
-                    fast = self._m1 * sqrt(6.0 * (self.c2 + self._q_m2 * s * s))
-                    self.noise_slow = fast
-                lim = self._clip_a * fast
-                if y > lim:
-                    y = lim
-                fast += self._fast_keep * (y - fast)
-                self.noise_fast = fast
-                slow = self.noise_slow
-                slow += self._slow_keep * (y - slow)
-                if fast > self._jump * slow or slow > self._jump * fast:
-                    slow = fast  # the light changed: start the slow average again
-                self.noise_slow = slow
-                self.noise_n += 1
-                c2 = slow * slow * self._kA - self._q_m2 * s * s
-                if c2 < self._obs2 * s * s:  # below the output step: not observable
-                    self.lux = None
-                    self.c2 = c2 if c2 > self._c2_floor else self._c2_floor
-                else:
-                    self.c2 = c2
-                    if self.noise_n >= NOISE_MIN_SAMPLES:
-                        lux = (sqrt(c2) - self._sigma0) / self._k
-                        self.lux = lux if lux > 0.0 else 0.0
-        self._z1 = z
-        self._gap_prev = g1
 
     def _start(self, z_m: float, r_m2: float) -> None:
         """Begin a track at ``z_m`` (variance ``r_m2``) with unknown speed."""
@@ -445,10 +466,10 @@ class RangeFilter:
         self.p01 = 0.0
         self.p11 = self._v0var
         self._run_n = 0
-        self.qa = self._qa_lo
-        self.man_mean = 0.0
+        self.qa = self._qa_hi
+        self._hold = self._hold_frames
+        self.man_mean = self.drift = self.extra = 0.0
         self.man_power = r_m2
-        self.cover = 1.0
 
     def _predict(self, dt_s: float) -> None:
         """Move the state ``dt_s`` (> 0) seconds ahead without a reading."""

@@ -27,7 +27,9 @@ frames are not within ``STEP_SETTLE_S`` after a distance step):
     bad_frames    published estimates more than BAD_ERROR_M off, not counting the
                   first STEP_GRACE_FRAMES frames after each step
     step_lag      frames from a step until the estimate is first within
-                  LAG_ERROR_M of the new distance; the worst step of the run
+                  LAG_ERROR_M of the new distance, counting only frames whose
+                  reading the sensor's own rule accepts (a target that reports
+                  nothing cannot be followed); the worst step of the run
     lux_ok        share of published lux figures within LUX_REL_TOL or LUX_ABS_TOL_LUX
                   of the truth, on frames where the light has been steady for
                   LUX_SETTLE_S (the lux a filter can know)
@@ -278,6 +280,7 @@ def _shared_rmse(
 
 def _metrics(
     name: str,
+    readable: Sequence[bool],
     est: Sequence[float | None],
     sig: Sequence[float | None] | None,
     truth: Sequence[float],
@@ -312,12 +315,14 @@ def _metrics(
             beyond += err > 5.0 * s
     lag: int | None = None
     for f in step_frames:
-        k = 0
-        while f + k < n:
-            e = est[f + k]
-            if e is not None and abs(e - truth[f + k]) <= LAG_ERROR_M:
+        k = 0  # frames with a reading the sensor vouches for, until the step is followed
+        i = f
+        while i < n:
+            e = est[i]
+            if e is not None and abs(e - truth[i]) <= LAG_ERROR_M:
                 break
-            k += 1
+            k += readable[i]
+            i += 1
         lag = k if lag is None else max(lag, k)
     lux_ok = lux_null = None
     if lux is not None and true_lux is not None and lux_settled is not None:
@@ -377,11 +382,15 @@ def evaluate_run(
     l_est, l_sig, l_lux = _lunad(run, config)
     true_lux = [tr.lux for tr in run.truth]
     settled = _lux_settled(run, scenario.rate_hz)
+    readable = [
+        z is not None and AMP_WEAK <= a <= AMP_AMBIENT
+        for z, a in zip(run.raw_m, run.amp, strict=True)
+    ]
     results = (
-        _metrics("raw", run.raw_m, None, truth, steps, away),
-        _metrics("median5", m_est, None, truth, steps, away),
-        _metrics("lunad", l_est, l_sig, truth, steps, away, l_lux, true_lux, settled),
-        _metrics("oracle", o_est, o_sig, truth, steps, away),
+        _metrics("raw", readable, run.raw_m, None, truth, steps, away),
+        _metrics("median5", readable, m_est, None, truth, steps, away),
+        _metrics("lunad", readable, l_est, l_sig, truth, steps, away, l_lux, true_lux, settled),
+        _metrics("oracle", readable, o_est, o_sig, truth, steps, away),
     )
     return ScenarioResult(
         scenario=scenario.name,

@@ -18,7 +18,7 @@ def test_metrics_by_hand() -> None:
     est: list[float | None] = [1.0] * 10 + [1.0, 1.0, 1.0, 1.0, 2.01] + [2.0] * 4 + [None]
     sig: list[float | None] = [0.01] * 19 + [None]
     away = ev._away(20, [10], 5)
-    res = ev._metrics("x", est, sig, truth, [10], away)
+    res = ev._metrics("x", [True] * 20, est, sig, truth, [10], away)
     assert res.coverage == pytest.approx(19 / 20)
     assert res.step_lag_frames == 4
     # frames 10-12 are excused; frame 13 is 1 m off
