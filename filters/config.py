@@ -129,8 +129,8 @@ class FilterConfig:
     noise_frames: int = 25
     noise_slow_frames: int = 250
     noise_jump_ratio: float = 1.7
-    noise_clip_sigmas: float = 2.5
-    lux_observable_sigma_m: float = 0.003
+    noise_clip_sigmas: float = 2.0
+    lux_observable_sigma_m: float = 0.004
     lux_init: float = 0.0
     sigma_floor_m: float = 0.002
     hysteresis: float = 0.1
