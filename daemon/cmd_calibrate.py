@@ -1,10 +1,15 @@
-"""``lunad calibrate``: measure amp_ref on a target of known reflectivity.
+"""``lunad calibrate``: amp_ref and the noise constants, on a target of known reflectivity.
 
 The paper recommends pre-calibrating on targets of known reflectivity (section VI,
-recommendation 2). Strength is S = amp / amp_ref with S = R cos(theta) (paper eq. 1)
-at the calibration distance, so one target of known R at a known angle gives
-amp_ref = median(amp) / (R cos(theta)). The median makes the figure robust to the odd
-multipath spike; readings the sensor itself flags (amp < 100, amp > 32768) are left out.
+recommendation 2). A still target of known R at a known angle and distance has the
+strength S = R cos(theta) (2 m / d)^2 (paper eq. 1 with the d^2 fall-off,
+docs/filter.md), so its readings give amp_ref = median(amp) / S; the median makes the
+figure robust to the odd multipath spike, and readings the sensor itself flags
+(amp < 100, amp > 32768) are left out. The spread of the same readings gives the noise
+at S = 1, c = sigma0 + k L (paper eqs 2-3), hence sigma0 with L from ``--lux`` (0 when
+not given: the target is taken as dark) or, with ``--fit-k``, k from the configured
+sigma0. The maths, and why the spread is not measured below half the 1 cm output step,
+are in ``lunad.filters.calibration``; this module reads the sensor, reports and writes.
 """
 
 from __future__ import annotations
@@ -22,20 +27,44 @@ import tempfile
 import threading
 import time
 import tomllib
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 from lunad.daemon.source_args import add_source_args, source_overrides
+from lunad.filters.calibration import (
+    MIN_DIFFERENCES,
+    Figure,
+    Spread,
+    amp_ref_of,
+    k_of,
+    noise_at_unit_strength,
+    reading_spread,
+    sigma0_of,
+    target_strength,
+)
+from lunad.filters.config import SIGMA0_DEFAULT_M, FilterConfig
 
 DESCRIPTION = """\
-Measure amp_ref, the amp that means strength S = 1, on a target of known
-reflectivity (a white matte card is about 0.9) at a known distance and angle, and
-write it into the config file's [filter] section (comments are kept).
+Measure amp_ref, the amp that means strength S = 1 (a white target square to the
+beam at 2 m), on a target of known reflectivity (a white matte card is about 0.9) at
+a known distance and angle; and, from the spread of the same readings, the noise
+constants of the paper's eq. 2: sigma0_m, the noise at S = 1 in the dark, or with
+--fit-k k_m_per_lux, its growth with light. --write puts what was measured into the
+config file's [filter] section (comments are kept).
+
+The noise shows only where it exceeds half the 1 cm output step: at S about 0.3-0.5
+or less (a white card at 3-4 m, a darker one nearer). A strong, close target gives
+amp_ref alone. To fit both constants: in the dark, --lux 0; then with a lux meter
+reading at the target under daylight or a lamp, --lux 30000 --fit-k, which uses the
+sigma0 the first run wrote. Until sigma0 is measured, lux_est rests on the datasheet's
+4 mm and is a coarse indication (dark, indoor, daylight), not a figure.
 
 Put the target square to the beam (or give --angle), fill the 2 degree beam with it
-(at 2 m the spot is 7 cm wide), and keep the scene still while it measures.
-Ctrl-C aborts: nothing is written.
+(the spot is 3.5 cm wide per metre), and keep the scene still while it measures.
+Ctrl-C aborts: nothing is written. Exit 1: too few readings, or the figure --lux or
+--fit-k asks for could not be measured (amp_ref is still reported and written).
 """
 
 EPILOG = """\
@@ -43,6 +72,10 @@ examples:
   lunad calibrate --device /dev/serial0 --reflectivity 0.9 --distance 2.0
   lunad calibrate --config /etc/lunad/front.toml --reflectivity 0.9 --distance 1.5 --write
   lunad calibrate --bus 1 --reflectivity 0.5 --distance 1.0 --angle 20 --seconds 10
+  # sigma0 and k on a white card at 4 m (S 0.23): in the dark, then at 30 klux
+  lunad calibrate --config front.toml --reflectivity 0.9 --distance 4 --lux 0 --write
+  lunad calibrate --config front.toml --reflectivity 0.9 --distance 4 --lux 30000 \\
+      --fit-k --write
 """
 
 AMP_MIN_VALID = 100  # below: the sensor reports no distance (M05 p.16)
@@ -51,45 +84,171 @@ DISTANCE_TOLERANCE = 0.1  # relative disagreement with --distance that earns a w
 MIN_READINGS = 20
 FILTER_TABLE: dict[str, Any] = {"filter": {}}  # what _table_header gives for [filter]
 
+MIN_FIGURE_SIGMAS = 2.0
+"""A noise figure is stored only when it lies this many of its uncertainties above 0
+(our choice: closer to 0 it is mostly the readings' scatter, and a k or sigma0 of about
+0 would make lux_est swing wildly)."""
+
+NOISE_STRENGTHS = (0.3, 0.5)
+"""Strengths at which to calibrate the noise, suggested when it is below the step (our
+choice: with the datasheet's sigma0 of 4 mm they give 8-13 mm of noise, well above
+the half step the spread needs; filters/calibration.py, SPREAD_MIN_STEPS)."""
+
+DATASHEET_SIGMA0_RANGE_MM = (1.1, 4.8)
+"""sigma0 the datasheet's repeatability tables imply, read with paper eq. 3 (sigma0 =
+sigma S, S = amp / 2000, the 1 cm step's share taken out): Table 2 (M05 p.9) gives 1.5
+to 4.8 mm from amp 100 to 2000, Table 3 (M05 p.10, 90 % target at 2 to 8 m) 1.1 to
+3.7 mm. The default 4 mm is the fit to Table 2 from amp 400 up (filters/config.py)."""
+
+NOISE_ASKED_EXIT = 1  # --lux or --fit-k given and its figure not measured
+
 
 @dataclass(frozen=True, slots=True)
 class Calibration:
     """What one calibration measured.
 
     Attributes:
-        amp_ref: amp for S = 1 at this distance.
+        amp_ref: amp for S = 1 (a white target square to the beam at 2 m).
+        amp_ref_err: its one-sigma uncertainty from the readings' amp scatter (an
+            error in the stated reflectivity, angle or distance adds to it).
+        strength: S of the target, R cos(theta) (2 m / d)^2.
         median_amp: median amp of the usable readings.
         median_distance_m: median distance the sensor reported, metres.
         used: readings used; rejected: readings the sensor flagged (weak or overexposed).
+        spread: the noise of single readings, metres (``lunad.filters.calibration``).
+        c: the noise at S = 1, c = sigma0 + k L, metres; None when not measurable.
+        sigma0: paper eq. 2's sigma0, metres; None when not measured (always with
+            ``fit_k``).
+        k: paper eq. 2's k, metres per lux; measured only with ``fit_k``.
+        not_measured: why the noise figure this run aims at (sigma0, or k with
+            ``fit_k``) was not measured, one sentence; None when it was.
     """
 
     amp_ref: float
+    amp_ref_err: float
+    strength: float
     median_amp: float
     median_distance_m: float
     used: int
     rejected: int
+    spread: Spread
+    c: Figure | None = None
+    sigma0: Figure | None = None
+    k: Figure | None = None
+    not_measured: str | None = None
+
+
+def _distance_for(strength: float, target_r_cos: float) -> float:
+    """Distance in metres at which a target of this R cos(theta) has ``strength``."""
+    return 2.0 * math.sqrt(target_r_cos / strength)
 
 
 def compute(
-    readings: list[tuple[float, int]], reflectivity: float, angle_deg: float
+    readings: list[tuple[float, int]],
+    reflectivity: float,
+    angle_deg: float,
+    distance_m: float,
+    *,
+    lux: float | None = None,
+    fit_k: bool = False,
+    filter_cfg: FilterConfig | None = None,
 ) -> Calibration:
-    """amp_ref from (distance_m, amp) readings of a target with known R and angle.
+    """amp_ref and the noise constants from (distance_m, amp) readings, in the order
+    the sensor sent them, of a still target with known R, angle and distance.
+
+    Args:
+        readings: distance 0 where the sensor reported none.
+        reflectivity, angle_deg, distance_m: the target, degrees and metres.
+        lux: ambient light at the target from a lux meter; None: not given, taken as
+            dark (0).
+        fit_k: fit k = (c - sigma0) / L with the configured sigma0, instead of
+            sigma0 = c - k L with the configured k.
+        filter_cfg: the configured sigma0, k and output step (defaults if None).
 
     Raises:
-        ValueError: R cos(theta) is not positive, or fewer than MIN_READINGS usable readings.
+        ValueError: R cos(theta) is not in (0, 1], ``fit_k`` without light, or fewer
+            than MIN_READINGS usable readings.
     """
-    s = reflectivity * math.cos(math.radians(angle_deg))
-    if not 0 < s <= 1:
-        raise ValueError(f"R cos(angle) must be in (0, 1], got {s:.3f}")
-    good = [(d, a) for d, a in readings if AMP_MIN_VALID <= a <= AMP_AMBIENT and d > 0]
+    cfg = filter_cfg or FilterConfig()
+    r_cos = reflectivity * math.cos(math.radians(angle_deg))
+    if not 0 < r_cos <= 1:
+        raise ValueError(f"R cos(angle) must be in (0, 1], got {r_cos:.3f}")
+    light = lux or 0.0
+    if fit_k and not light > 0:
+        raise ValueError("fitting k needs the light at the target (lux above 0)")
+    usable = [AMP_MIN_VALID <= a <= AMP_AMBIENT and d > 0 for d, a in readings]
+    good = [r for r, ok in zip(readings, usable, strict=True) if ok]
     if len(good) < MIN_READINGS:
         raise ValueError(
             f"only {len(good)} usable readings of {len(readings)} (need {MIN_READINGS}): "
             "is the target in the beam and the sensor streaming?"
         )
-    amp = statistics.median(a for _, a in good)
-    dist = statistics.median(d for d, _ in good)
-    return Calibration(amp / s, amp, dist, len(good), len(readings) - len(good))
+    s = target_strength(reflectivity, angle_deg, distance_m)
+    amp_ref = amp_ref_of([a for _, a in good], s)
+    spread = reading_spread(
+        [d if ok else None for (d, _), ok in zip(readings, usable, strict=True)],
+        cfg.resolution_m,
+    )
+    cal = Calibration(
+        amp_ref=amp_ref.value,
+        amp_ref_err=amp_ref.err,
+        strength=s,
+        median_amp=statistics.median(a for _, a in good),
+        median_distance_m=statistics.median(d for d, _ in good),
+        used=len(good),
+        rejected=len(readings) - len(good),
+        spread=spread,
+    )
+    name, verb = ("k_m_per_lux", "fit k") if fit_k else ("sigma0_m", "calibrate sigma0")
+    if spread.sd_m is None:
+        if spread.below_step:
+            low, high = NOISE_STRENGTHS
+            if s > high:
+                where = (
+                    f"S about {low:g}-{high:g}: this one at {_distance_for(high, r_cos):.1f}"
+                    f"-{_distance_for(low, r_cos):.1f} m"
+                )
+            else:  # a sensor quieter than the datasheet's
+                where = f"this one's S is {s:.2g} already: farther still, or darker"
+            why = (
+                f"the noise is below the 1 cm step here ({spread.repeat_share * 100:.0f} % of "
+                f"the readings repeat one centimetre); {verb} on a darker or farther target "
+                f"({where})"
+            )
+        else:
+            why = (
+                f"only {spread.differences} runs of three consecutive usable readings "
+                f"(need {MIN_DIFFERENCES}): is the target still, and strong enough?"
+            )
+        return replace(cal, not_measured=f"{name} not measured: {why}")
+    c = noise_at_unit_strength(spread.sd_m, s)
+    if fit_k:
+        k = k_of(c, light, cfg.sigma0_m)
+        if k.value < MIN_FIGURE_SIGMAS * k.err:
+            return replace(
+                cal,
+                c=c,
+                not_measured=(
+                    f"k_m_per_lux not measured: the noise at S = 1 under {light:g} lux, "
+                    f"{c.value * 1e3:.2f} ± {c.err * 1e3:.2f} mm, is not clearly above "
+                    f"sigma0 ({cfg.sigma0_m * 1e3:.2f} mm): is the light on the target "
+                    "and --lux right? Fit k under more light (20-40 klux)"
+                ),
+            )
+        return replace(cal, c=c, k=k)
+    sigma0 = sigma0_of(c, light, cfg.k_m_per_lux)
+    if sigma0.value < MIN_FIGURE_SIGMAS * sigma0.err:
+        return replace(
+            cal,
+            c=c,
+            not_measured=(
+                f"sigma0_m not measured: the light you gave (k L = "
+                f"{cfg.k_m_per_lux * light * 1e3:.2f} mm) explains the noise at S = 1 "
+                f"({c.value * 1e3:.2f} ± {c.err * 1e3:.2f} mm); check --lux, or "
+                "calibrate sigma0 in the dark"
+            ),
+        )
+    return replace(cal, c=c, sigma0=sigma0)
 
 
 def _table_header(line: str) -> dict[str, Any] | None:
@@ -109,8 +268,17 @@ def _table_header(line: str) -> dict[str, Any] | None:
         return None
 
 
-def write_amp_ref(path: Path, amp_ref: float) -> None:
-    """Set ``[filter] amp_ref`` in a TOML file, keeping everything else; atomic replace.
+def _toml_float(key: str, value: float) -> str:
+    """How ``key``'s value is written: amp_ref to 0.1, the noise constants to three
+    significant figures (their uncertainty is a few per cent); always a TOML float."""
+    return f"{value:.1f}" if key == "amp_ref" else repr(float(f"{value:.3g}"))
+
+
+def write_filter_values(path: Path, values: Mapping[str, float]) -> None:
+    """Set keys under ``[filter]`` in a TOML file, keeping everything else; atomic replace.
+
+    A key already there keeps its line's place and comment; a new one goes after the
+    table's last setting (a new ``[filter]`` table at the end if there is none).
 
     The new file keeps the old one's permission bits, and its owner and group when we
     run as root: the daemon reads it as its own user (``User=lunad`` in the unit), and a
@@ -120,44 +288,54 @@ def write_amp_ref(path: Path, amp_ref: float) -> None:
     A symlinked ``path`` (``/etc/lunad/front.toml`` pointing into a config repository) is
     followed: the file it points to is replaced, in its own directory, and the link
     stays. Replacing ``path`` itself would swap the link for a copy and leave the
-    config the link named, the one that is maintained, with the old amp_ref.
+    config the link named, the one that is maintained, with the old values.
+
+    Args:
+        values: ``FilterConfig`` field name -> value, in its unit.
 
     Raises:
-        ValueError: the edit would not leave a file where ``[filter] amp_ref`` reads back
-            as ``amp_ref`` (a layout this line-based edit does not follow); the file is
-            left as it was.
+        ValueError: the edit would not leave a file where every key under ``[filter]``
+            reads back as written (a layout this line-based edit does not follow); the
+            file is left as it was.
         OSError: the file cannot be read or replaced.
     """
     target = path.resolve()
     old = target.stat() if target.exists() else None
     text = target.read_text(encoding="utf-8") if old is not None else ""
-    line = f"amp_ref = {amp_ref:.1f}"
+    written = {key: _toml_float(key, value) for key, value in values.items()}
+    todo = dict(written)
     lines = text.splitlines()
     section: dict[str, Any] | None = None
+    filter_end: int | None = None  # index after the [filter] table's last setting
     for i, raw in enumerate(lines):
-        stripped = raw.strip()
         if (header := _table_header(raw)) is not None:
-            if section == FILTER_TABLE:
-                lines.insert(i, line)
-                break
             section = header
-        elif section == FILTER_TABLE and re.match(r"amp_ref\s*=", stripped):
+            if section == FILTER_TABLE and filter_end is None:
+                filter_end = i + 1
+            continue
+        stripped = raw.strip()
+        if section != FILTER_TABLE or not stripped or stripped.startswith("#"):
+            continue
+        filter_end = i + 1
+        for key in [k for k in todo if re.match(rf"{re.escape(k)}\s*=", stripped)]:
+            line = f"{key} = {todo.pop(key)}"
             comment = raw[raw.index("#") :] if "#" in raw else ""
             lines[i] = f"{line:29} {comment}".rstrip() if comment else line
-            break
+    new = [f"{key} = {value}" for key, value in todo.items()]
+    if filter_end is None:
+        lines += ["", "[filter]", *new]
     else:
-        if section == FILTER_TABLE:
-            lines.append(line)
-        else:
-            lines += ["", "[filter]", line]
+        lines[filter_end:filter_end] = new
     new_text = "\n".join(lines) + "\n"
     try:
-        written = tomllib.loads(new_text)["filter"]["amp_ref"]
+        table = tomllib.loads(new_text)["filter"]
+        placed = all(table[key] == float(value) for key, value in written.items())
     except (tomllib.TOMLDecodeError, KeyError, TypeError):
-        written = None
-    if written != float(f"{amp_ref:.1f}"):
+        placed = False
+    if not placed:
+        wanted = ", ".join(f"`{key} = {value}`" for key, value in written.items())
         raise ValueError(
-            f"cannot place amp_ref in {path} safely; add `amp_ref = {amp_ref:.1f}` "
+            f"cannot place {', '.join(written)} in {path} safely; add {wanted} "
             "under [filter] by hand"
         )
     if old is not None:
@@ -195,6 +373,10 @@ def _flag_problem(args: argparse.Namespace) -> str | None:
         return f"--distance must be positive and finite (metres), got {args.distance}"
     if not 0 < args.seconds < math.inf:
         return f"--seconds must be positive and finite, got {args.seconds}"
+    if args.lux is not None and not 0 <= args.lux < math.inf:
+        return f"--lux must be 0 or more and finite (lux at the target), got {args.lux}"
+    if args.fit_k and not (args.lux or 0) > 0:
+        return "--fit-k needs --lux above 0: a lux meter reading at the target (20-40 klux)"
     return None
 
 
@@ -202,7 +384,7 @@ def add_parser(sub: Any) -> None:
     """Register ``calibrate``."""
     p = sub.add_parser(
         "calibrate",
-        help="measure amp_ref on a target of known reflectivity",
+        help="measure amp_ref and the noise constants on a target of known reflectivity",
         description=DESCRIPTION,
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -219,8 +401,77 @@ def add_parser(sub: Any) -> None:
     p.add_argument(
         "--seconds", type=float, default=5.0, metavar="S", help="how long to measure (default 5)"
     )
-    p.add_argument("--write", action="store_true", help="write amp_ref into --config FILE")
+    p.add_argument(
+        "--lux",
+        type=float,
+        metavar="L",
+        help="ambient light at the target from a lux meter (default: taken as dark, 0;"
+        " indoor light of 500 lux adds about 0.1 mm to sigma0)",
+    )
+    p.add_argument(
+        "--fit-k",
+        action="store_true",
+        help="fit k_m_per_lux, the noise's growth with light, with the configured sigma0"
+        " instead of measuring sigma0; needs --lux above 0",
+    )
+    p.add_argument(
+        "--write",
+        action="store_true",
+        help="write what was measured (amp_ref, and sigma0_m or k_m_per_lux) into --config FILE",
+    )
     p.set_defaults(func=run)
+
+
+def report(cal: Calibration, args: argparse.Namespace, cfg: FilterConfig) -> list[str]:
+    """The lines ``run`` prints on stdout for ``cal``: each figure with its uncertainty."""
+    sp = cal.spread
+    out = [
+        f"{cal.used} readings used, {cal.rejected} flagged by the sensor; median amp "
+        f"{cal.median_amp:.0f}, median distance {cal.median_distance_m:.3f} m",
+        f"amp_ref = {cal.amp_ref:.1f} ± {cal.amp_ref_err:.1f}   (S = 1: R cos(angle) = 1 at "
+        f"2 m; this target's S = R cos(angle) (2 m / {args.distance:g} m)^2 = "
+        f"{cal.strength:.3g})",
+    ]
+    if sp.sd_m is not None and cal.c is not None:
+        out += [
+            f"reading noise {sp.sd_m.value * 1e3:.1f} ± {sp.sd_m.err * 1e3:.1f} mm, the 1 cm "
+            f"step's share taken out ({sp.differences} second differences, {sp.dropped} "
+            "dropped as spikes)",
+            f"noise at S = 1: c = sigma0 + k L = {cal.c.value * 1e3:.2f} ± "
+            f"{cal.c.err * 1e3:.2f} mm",
+        ]
+    if cal.sigma0 is not None:
+        if args.lux is None:
+            how = (
+                "--lux not given: the target is taken as dark; light adds k L = "
+                f"{cfg.k_m_per_lux * 1e6:.2g} mm per klux"
+            )
+        elif args.lux == 0:
+            how = "in the dark, --lux 0"
+        else:
+            how = f"c - k L with k = {cfg.k_m_per_lux:.3g} m/lux and L = {args.lux:g} lux"
+        out.append(
+            f"sigma0_m = {cal.sigma0.value:.3g} ± {cal.sigma0.err:.2g}   "
+            f"({cal.sigma0.value * 1e3:.2f} ± {cal.sigma0.err * 1e3:.2f} mm; {how})"
+        )
+    if cal.k is not None:
+        out.append(
+            f"k_m_per_lux = {cal.k.value:.3g} ± {cal.k.err:.2g}   ((c - sigma0) / L with "
+            f"sigma0 = {cfg.sigma0_m:.3g} m from the config and L = {args.lux:g} lux; "
+            f"{cal.k.value * 1e6:.3g} mm per klux)"
+        )
+    if cal.not_measured is not None:
+        out.append(cal.not_measured)
+    if cal.sigma0 is None and cfg.sigma0_m == SIGMA0_DEFAULT_M:
+        low, high = DATASHEET_SIGMA0_RANGE_MM
+        out.append(
+            f"sigma0_m stays {SIGMA0_DEFAULT_M:g}, the datasheet fit, not measured on this "
+            f"sensor: each mm this sensor's sigma0 differs from it moves lux_est by "
+            f"{1e-3 / cfg.k_m_per_lux / 1e3:.0f} klux (1 mm / k), and the datasheet's "
+            f"tables allow {low:g}-{high:g} mm, so read lux_est as dark, indoor or "
+            "daylight, not as a figure"
+        )
+    return out
 
 
 def run(args: argparse.Namespace) -> int:
@@ -247,6 +498,14 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         print(f"lunad calibrate: {exc}", file=sys.stderr)
         return EX_CONFIG
+    filter_cfg = cfg.filter.to_filter_config()
+    if args.fit_k and filter_cfg.sigma0_m == SIGMA0_DEFAULT_M:
+        print(
+            f"warning: sigma0_m is the datasheet's {SIGMA0_DEFAULT_M:g}, not measured on this "
+            "sensor, and k inherits its error: run `lunad calibrate --lux 0 --write` in "
+            "the dark first",
+            file=sys.stderr,
+        )
     stop = threading.Event()
     stopped_by: list[int] = []
 
@@ -283,33 +542,44 @@ def run(args: argparse.Namespace) -> int:
         print(f"lunad calibrate: {name}: measurement aborted, nothing written", file=sys.stderr)
         return 128 + stopped_by[0]
     try:
-        cal = compute(readings, args.reflectivity, args.angle)
+        cal = compute(
+            readings,
+            args.reflectivity,
+            args.angle,
+            args.distance,
+            lux=args.lux,
+            fit_k=args.fit_k,
+            filter_cfg=filter_cfg,
+        )
     except ValueError as exc:
         print(f"lunad calibrate: {exc}", file=sys.stderr)
         return 1
-    print(
-        f"{cal.used} readings used, {cal.rejected} flagged by the sensor; median amp "
-        f"{cal.median_amp:.0f}, median distance {cal.median_distance_m:.3f} m\n"
-        f"amp_ref = {cal.amp_ref:.1f}   (S = 1 at {args.distance:g} m)"
-    )
+    print("\n".join(report(cal, args, filter_cfg)))
     if abs(cal.median_distance_m - args.distance) > DISTANCE_TOLERANCE * args.distance + 0.05:
         print(
             f"warning: the sensor reads {cal.median_distance_m:.3f} m, not {args.distance:g} m: "
             "is the target where you say, and does it fill the beam?",
             file=sys.stderr,
         )
+    code = 0
+    if cal.not_measured is not None and (args.lux is not None or args.fit_k):
+        code = NOISE_ASKED_EXIT
     if args.write:
+        values = {"amp_ref": cal.amp_ref}
+        if cal.sigma0 is not None:
+            values["sigma0_m"] = cal.sigma0.value
+        if cal.k is not None:
+            values["k_m_per_lux"] = cal.k.value
+        keys = ", ".join(values)
         try:
-            write_amp_ref(Path(args.config), cal.amp_ref)
+            write_filter_values(Path(args.config), values)
         except (OSError, ValueError) as exc:
             print(f"lunad calibrate: --write: {exc}", file=sys.stderr)
             return EX_CONFIG
         try:
             load_config(args.config)
         except ConfigError as exc:  # the file was broken before; say so plainly
-            print(
-                f"lunad calibrate: wrote amp_ref, but the file is invalid: {exc}", file=sys.stderr
-            )
+            print(f"lunad calibrate: wrote {keys}, but the file is invalid: {exc}", file=sys.stderr)
             return EX_CONFIG
-        print(f"wrote [filter] amp_ref to {args.config}; `systemctl reload lunad@NAME` applies it")
-    return 0
+        print(f"wrote [filter] {keys} to {args.config}; `systemctl reload lunad@NAME` applies it")
+    return code

@@ -1,8 +1,11 @@
-"""`lunad calibrate` through the real pty: amp_ref measured and written into the config."""
+"""`lunad calibrate` through the real pty: amp_ref, sigma0 and k measured and written into
+the config."""
 
 from __future__ import annotations
 
 import os
+import random
+import re
 import signal
 import stat
 import subprocess
@@ -14,9 +17,16 @@ from typing import Any
 
 import pytest
 
-from lunad.daemon.cmd_calibrate import compute, write_amp_ref
+from lunad.daemon.cmd_calibrate import compute, write_filter_values
 from lunad.daemon.config import load_config
-from lunad.sim.physics import AMP_REF, RealisticSensor, Truth
+from lunad.filters import FilterConfig
+from lunad.sim.physics import (
+    AMP_REF,
+    REALISTIC_K_M_PER_LUX,
+    REALISTIC_SIGMA0_M,
+    RealisticSensor,
+    Truth,
+)
 from lunad.sim.pty_device import PtyDevice
 
 
@@ -30,14 +40,108 @@ def write_amp_ref_argv(helpers: Any, cfg: Path, seconds: str) -> list[str]:
 
 def test_compute_uses_median_of_usable_readings() -> None:
     readings = [(2.0, 1800)] * 30 + [(0.0, 50)] * 10 + [(2.0, 40000)] * 5 + [(9.9, 1700)]
-    cal = compute(readings, 0.9, 0.0)
+    cal = compute(readings, 0.9, 0.0, 2.0)
     assert cal.median_amp == 1800 and cal.amp_ref == pytest.approx(2000)
     assert cal.used == 31 and cal.rejected == 15
-    assert compute(readings, 0.9, 60.0).amp_ref == pytest.approx(4000)
+    assert compute(readings, 0.9, 60.0, 2.0).amp_ref == pytest.approx(4000)
     with pytest.raises(ValueError, match="usable"):
-        compute([(0.0, 10)] * 100, 0.9, 0.0)
+        compute([(0.0, 10)] * 100, 0.9, 0.0, 2.0)
     with pytest.raises(ValueError, match="R cos"):
-        compute(readings, 0.9, 95.0)
+        compute(readings, 0.9, 95.0, 2.0)
+
+
+def test_amp_ref_is_for_a_white_target_at_2_m_wherever_it_was_measured() -> None:
+    """S = R cos(angle) (2 m / d)^2: a grey card at 3 m and a white one at 1 m give the
+    amp_ref of a white one at 2 m (the simulator's amp falls with d^2, as S does)."""
+    grey_far = compute([(3.0, 267)] * 50, 0.3, 0.0, 3.0)
+    assert grey_far.amp_ref == pytest.approx(2000, rel=0.01)
+    assert grey_far.strength == pytest.approx(0.3 * 4 / 9)
+    assert compute([(1.0, 7200)] * 50, 0.9, 0.0, 1.0).amp_ref == pytest.approx(2000)
+
+
+def still_target(
+    c_m: float, strength: float, n: int = 5000, seed: int = 0
+) -> list[tuple[float, int]]:
+    """(distance_m, amp) readings of a still target at 3 m with noise c / S, whole cm."""
+    rng = random.Random(seed)
+    amp = round(2000 * strength)
+    return [(round(3.0 + rng.gauss(0.0, c_m / strength), 2), amp) for _ in range(n)]
+
+
+def test_compute_measures_sigma0_in_the_dark_and_k_under_light() -> None:
+    sigma0, k = 0.004, 2.5e-7
+    dark = compute(still_target(sigma0, 0.15), 0.15, 0.0, 2.0, lux=0.0)
+    assert dark.sigma0 is not None and dark.k is None and dark.not_measured is None
+    assert dark.sigma0.value == pytest.approx(sigma0, rel=0.05) and dark.sigma0.err < 1e-4
+    lit = still_target(sigma0 + k * 30_000, 0.15, seed=1)
+    fitted = compute(lit, 0.15, 0.0, 2.0, lux=30_000.0, fit_k=True)
+    assert fitted.k is not None and fitted.sigma0 is None
+    assert fitted.k.value == pytest.approx(k, rel=0.1) and fitted.k.err < 1e-8
+    # sigma0 = c - k L with the configured k gives the same sigma0 under that light
+    lit_sigma0 = compute(lit, 0.15, 0.0, 2.0, lux=30_000.0).sigma0
+    assert lit_sigma0 is not None and lit_sigma0.value == pytest.approx(sigma0, rel=0.1)
+
+
+def test_compute_says_why_a_noise_figure_is_not_measured() -> None:
+    strong = compute(still_target(0.004, 4.0), 1.0, 0.0, 1.0)
+    assert strong.sigma0 is None and strong.not_measured is not None
+    assert strong.not_measured.startswith(
+        "sigma0_m not measured: the noise is below the 1 cm step here ("
+    )
+    assert (
+        "calibrate sigma0 on a darker or farther target (S about 0.3-0.5: this one at 2.8-3.7 m)"
+        in strong.not_measured
+    )
+    assert strong.amp_ref == pytest.approx(2000)  # amp_ref is measured all the same
+    quiet = compute(still_target(0.0008, 0.2), 0.2, 0.0, 2.0)  # quieter than the datasheet
+    assert "(this one's S is 0.2 already: farther still, or darker)" in (quiet.not_measured or "")
+    # a lux figure that explains all of the noise: no sigma0 of about 0 is stored
+    bright = compute(still_target(0.004, 0.15), 0.15, 0.0, 2.0, lux=16_000.0)
+    assert bright.sigma0 is None and "explains the noise" in (bright.not_measured or "")
+    # no more noise under the light than sigma0 alone: no k
+    unlit = compute(still_target(0.004, 0.15), 0.15, 0.0, 2.0, lux=30_000.0, fit_k=True)
+    assert unlit.k is None and "k_m_per_lux not measured" in (unlit.not_measured or "")
+    with pytest.raises(ValueError, match="lux"):
+        compute(still_target(0.004, 0.15), 0.15, 0.0, 2.0, fit_k=True)
+    configured = FilterConfig(sigma0_m=0.002)
+    more = compute(
+        still_target(0.004, 0.15), 0.15, 0.0, 2.0, lux=8000.0, fit_k=True, filter_cfg=configured
+    )
+    assert more.k is not None and more.k.value == pytest.approx(2.5e-7, rel=0.1)
+
+
+def test_write_edits_only_its_keys_in_place(tmp_path: Path) -> None:
+    """A key already there keeps its place and comment; a new one goes after the
+    table's last setting, not under the next table's comment."""
+    f = tmp_path / "a.toml"
+    before = [
+        "# front sensor",
+        "[filter]",
+        "amp_ref = 2000.0              # amp for strength S = 1",
+        "sigma0_m = 0.004              # metres at zero ambient light and S = 1",
+        "s_min = 0.05",
+        "",
+        "# where it publishes",
+        "[publish]",
+        "sndhwm = 1000",
+    ]
+    f.write_text("\n".join(before) + "\n")
+    write_filter_values(f, {"amp_ref": 1998.04, "sigma0_m": 0.0041234, "k_m_per_lux": 2.61e-7})
+    after = f.read_text().splitlines()
+    assert after == [
+        "# front sensor",
+        "[filter]",
+        "amp_ref = 1998.0              # amp for strength S = 1",
+        "sigma0_m = 0.00412            # metres at zero ambient light and S = 1",
+        "s_min = 0.05",
+        "k_m_per_lux = 2.61e-07",
+        "",
+        "# where it publishes",
+        "[publish]",
+        "sndhwm = 1000",
+    ]
+    cfg = load_config(f).filter.to_filter_config()
+    assert (cfg.sigma0_m, cfg.k_m_per_lux, cfg.s_min) == (0.00412, 2.61e-7, 0.05)
 
 
 def test_write_keeps_comments_and_other_keys(tmp_path: Path) -> None:
@@ -45,13 +149,13 @@ def test_write_keeps_comments_and_other_keys(tmp_path: Path) -> None:
     f.write_text(
         '# mine\n[sensor]\nname = "x"\n\n[filter]\namp_ref = 2000.0  # old\ns_min = 0.05\n'
     )
-    write_amp_ref(f, 1234.56)
+    write_filter_values(f, {"amp_ref": 1234.56})
     text = f.read_text()
     assert "# mine" in text and "s_min = 0.05" in text and "# old" in text
     assert load_config(f).filter.to_filter_config().amp_ref == pytest.approx(1234.6)
     g = tmp_path / "b.toml"
     g.write_text('[sensor]\nname = "y"\n')
-    write_amp_ref(g, 999.0)
+    write_filter_values(g, {"amp_ref": 999.0})
     assert load_config(g).filter.to_filter_config().amp_ref == 999.0
     assert load_config(g).sensor.name == "y"
 
@@ -78,6 +182,140 @@ def test_calibrate_on_the_virtual_sensor(
     assert amp_ref == pytest.approx(AMP_REF, rel=0.03)  # the simulator's truth, recovered
     assert "warning" not in r.stderr
     assert f'source]\ndevice = "{dev.path}"' in cfg.read_text()
+
+
+def calibrate_argv(
+    helpers: Any, dev: PtyDevice, truth: Truth, *flags: str, seconds: str = "2"
+) -> list[str]:
+    """``lunad calibrate`` on ``dev`` for the target in ``truth``, at 250 Hz: 2 s give
+    about 500 readings, sigma0 to about 5 %."""
+    return [
+        *helpers.lunad, "calibrate", "--device", dev.path, "--rate", "250", "--seconds", seconds,
+        "--reflectivity", str(truth.reflectivity), "--distance", str(truth.distance_m), *flags,
+    ]  # fmt: skip
+
+
+def figure(stdout: str, name: str) -> tuple[float, float]:
+    """(value, uncertainty) of ``name = value ± err`` in calibrate's output."""
+    m = re.search(rf"^{name} = (\S+) ± (\S+)", stdout, re.MULTILINE)
+    assert m is not None, stdout
+    return float(m.group(1)), float(m.group(2))
+
+
+GREY_AT_3_M = Truth(distance_m=3.0, reflectivity=0.3, angle_deg=0.0, lux=0.0)
+"""S = 0.3 (2 m / 3 m)^2 = 0.133: the reading noise is 3 cm, three steps."""
+
+
+def test_sigma0_in_the_dark_then_k_under_light_on_the_virtual_sensor(
+    device: Callable[..., PtyDevice], tmp_path: Path, helpers: Any
+) -> None:
+    """The two runs a user makes, each ``--write`` storing what it measured and leaving
+    the file's other lines as they were."""
+    cfg = tmp_path / "front.toml"
+    before = [
+        "# front sensor",
+        "[sensor]",
+        'name = "front"',
+        "",
+        "[filter]",
+        "amp_ref = 1500.0              # amp for strength S = 1",
+        "s_min = 0.05",
+        "sigma0_m = 0.004              # metres at zero ambient light and S = 1",
+        "",
+        "# where it publishes",
+        "[publish]",
+        "sndhwm = 1000",
+    ]
+    cfg.write_text("\n".join(before) + "\n")
+    dark = device(rate_hz=250, output_enabled=False, model=RealisticSensor(), truth=GREY_AT_3_M)
+    r = subprocess.run(
+        calibrate_argv(helpers, dark, GREY_AT_3_M, "--config", str(cfg), "--lux", "0", "--write"),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode == 0, r.stderr
+    assert "(4." in r.stdout and "mm; in the dark, --lux 0)" in r.stdout
+    assert "wrote [filter] amp_ref, sigma0_m to" in r.stdout and "lux_est" not in r.stdout
+    written = load_config(cfg).filter.to_filter_config()
+    assert written.sigma0_m == pytest.approx(REALISTIC_SIGMA0_M, rel=0.15)
+    assert written.sigma0_m == pytest.approx(figure(r.stdout, "sigma0_m")[0])
+    assert written.amp_ref == pytest.approx(AMP_REF, rel=0.03)
+    assert written.k_m_per_lux == FilterConfig().k_m_per_lux  # not measured: not written
+    dark.close()
+
+    lamp_truth = Truth(distance_m=3.0, reflectivity=0.3, angle_deg=0.0, lux=30_000.0)
+    lamp = device(
+        rate_hz=250,
+        output_enabled=False,
+        model=RealisticSensor(),
+        truth=lamp_truth,
+        link=tmp_path / "tfluna-lamp",
+    )
+    r = subprocess.run(
+        calibrate_argv(
+            helpers, lamp, lamp_truth, "--config", str(cfg), "--lux", "30000", "--fit-k", "--write"
+        ),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode == 0, r.stderr
+    assert "wrote [filter] amp_ref, k_m_per_lux to" in r.stdout and "warning" not in r.stderr
+    fitted = load_config(cfg).filter.to_filter_config()
+    assert fitted.k_m_per_lux == pytest.approx(REALISTIC_K_M_PER_LUX, rel=0.3)
+    assert fitted.sigma0_m == written.sigma0_m  # the dark run's, used and kept
+    after = cfg.read_text().splitlines()
+    changed = [i for i, line in enumerate(before[:8]) if after[i] != line]
+    assert changed == [5, 7]  # amp_ref and sigma0_m, in place, comments kept
+    assert after[5].endswith("# amp for strength S = 1")
+    assert after[7].endswith("# metres at zero ambient light and S = 1")
+    assert after[8].startswith("k_m_per_lux = ") and after[9:] == before[8:]
+
+
+def test_a_noisier_sensor_reads_a_larger_sigma0(
+    device: Callable[..., PtyDevice], helpers: Any
+) -> None:
+    """The simulator's noise_scale 2 doubles sigma0: 8 mm."""
+    dev = device(rate_hz=250, output_enabled=False, model=RealisticSensor(2.0), truth=GREY_AT_3_M)
+    r = subprocess.run(
+        calibrate_argv(helpers, dev, GREY_AT_3_M), capture_output=True, text=True, timeout=60
+    )
+    assert r.returncode == 0, r.stderr
+    sigma0, err = figure(r.stdout, "sigma0_m")
+    assert sigma0 == pytest.approx(2 * REALISTIC_SIGMA0_M, rel=0.15) and 0 < err < 0.001
+    assert "--lux not given: the target is taken as dark" in r.stdout
+
+
+def test_a_strong_close_target_gives_amp_ref_but_no_sigma0(
+    device: Callable[..., PtyDevice], tmp_path: Path, helpers: Any
+) -> None:
+    """A white card at 1 m (S = 3.6, noise 1 mm): the readings repeat one centimetre.
+    sigma0 is refused, amp_ref is measured and written; asked for with --lux, exit 1."""
+    truth = Truth(distance_m=1.0, reflectivity=0.9, angle_deg=0.0, lux=0.0)
+    dev = device(rate_hz=250, output_enabled=False, model=RealisticSensor(), truth=truth)
+    cfg = tmp_path / "front.toml"
+    cfg.write_text("[filter]\namp_ref = 1500.0\n")
+    r = subprocess.run(
+        calibrate_argv(helpers, dev, truth, "--config", str(cfg), "--write"),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode == 0, r.stderr
+    assert "sigma0_m not measured: the noise is below the 1 cm step here" in r.stdout
+    assert "calibrate sigma0 on a darker or farther target (S about 0.3-0.5" in r.stdout
+    assert "sigma0_m stays 0.004, the datasheet fit" in r.stdout and "lux_est" in r.stdout
+    assert "wrote [filter] amp_ref to" in r.stdout
+    assert load_config(cfg).filter.to_filter_config().amp_ref == pytest.approx(AMP_REF, rel=0.03)
+    assert "sigma0" not in cfg.read_text()
+    r = subprocess.run(
+        calibrate_argv(helpers, dev, truth, "--lux", "0", seconds="0.5"),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode == 1 and "sigma0_m not measured" in r.stdout, r.stderr
 
 
 def test_calibrate_warns_when_the_distance_disagrees(
@@ -131,7 +369,7 @@ def test_write_finds_a_filter_header_toml_allows(tmp_path: Path, header: str) ->
     """A header with a comment or inner spaces is still [filter]: no second table."""
     f = tmp_path / "a.toml"
     f.write_text(f'[sensor]\nname = "x"\n\n{header}\namp_ref = 2000.0\ns_min = 0.05\n')
-    write_amp_ref(f, 1500.0)
+    write_filter_values(f, {"amp_ref": 1500.0})
     cfg = load_config(f)
     assert cfg.filter.to_filter_config().amp_ref == 1500.0
     assert f.read_text().count("amp_ref") == 1 and header in f.read_text()
@@ -143,7 +381,7 @@ def test_write_tells_other_tables_and_arrays_from_filter(tmp_path: Path) -> None
     f.write_text(
         "[filter]\nrows = [\n  [1, 2],\n  [3, 4],\n]\n\n[[probe]]\nx = 1\n\n[filter.sub]\ny = 2\n"
     )
-    write_amp_ref(f, 1500.0)
+    write_filter_values(f, {"amp_ref": 1500.0})
     data = tomllib.loads(f.read_text())
     assert data["filter"]["amp_ref"] == 1500.0 and data["filter"]["rows"] == [[1, 2], [3, 4]]
     assert data["filter"]["sub"] == {"y": 2} and data["probe"] == [{"x": 1}]
@@ -155,7 +393,7 @@ def test_write_refuses_a_layout_it_cannot_edit(tmp_path: Path) -> None:
     before = "[[filter]]\namp_ref = 2000.0\n"
     f.write_text(before)
     with pytest.raises(ValueError, match="by hand"):
-        write_amp_ref(f, 1500.0)
+        write_filter_values(f, {"amp_ref": 1500.0})
     assert f.read_text() == before and os.listdir(tmp_path) == ["a.toml"]
 
 
@@ -165,11 +403,11 @@ def test_write_keeps_the_file_mode(tmp_path: Path) -> None:
         f = tmp_path / f"{mode:o}.toml"
         f.write_text("[filter]\namp_ref = 2000.0\n")
         f.chmod(mode)
-        write_amp_ref(f, 1500.0)
+        write_filter_values(f, {"amp_ref": 1500.0})
         assert stat.S_IMODE(f.stat().st_mode) == mode
     old_umask = os.umask(0o022)
     try:
-        write_amp_ref(tmp_path / "new.toml", 1500.0)
+        write_filter_values(tmp_path / "new.toml", {"amp_ref": 1500.0})
     finally:
         os.umask(old_umask)
     assert stat.S_IMODE((tmp_path / "new.toml").stat().st_mode) == 0o644
@@ -180,7 +418,7 @@ def test_write_as_root_keeps_owner_and_group(tmp_path: Path) -> None:
     f = tmp_path / "a.toml"
     f.write_text("[filter]\namp_ref = 2000.0\n")
     os.chown(f, 4321, 8765)
-    write_amp_ref(f, 1500.0)
+    write_filter_values(f, {"amp_ref": 1500.0})
     st = f.stat()
     assert (st.st_uid, st.st_gid) == (4321, 8765)
 
@@ -260,6 +498,16 @@ def test_write_follows_a_symlinked_config(
         (["--angle", "-10"], "--angle must be at least 0 and below 90 degrees, got -10.0"),
         (["--seconds", "0"], "--seconds must be positive and finite, got 0.0"),
         (["--seconds", "nan"], "--seconds must be positive and finite, got nan"),
+        (["--lux", "-1"], "--lux must be 0 or more and finite (lux at the target), got -1.0"),
+        (["--lux", "inf"], "--lux must be 0 or more and finite (lux at the target), got inf"),
+        (
+            ["--fit-k"],
+            "--fit-k needs --lux above 0: a lux meter reading at the target (20-40 klux)",
+        ),
+        (
+            ["--fit-k", "--lux", "0"],
+            "--fit-k needs --lux above 0: a lux meter reading at the target (20-40 klux)",
+        ),
     ],
 )
 def test_bad_measurement_flags_are_refused_before_the_sensor_opens(
