@@ -57,6 +57,7 @@ from lunad.daemon.bench import _cpu_ticks
 from lunad.daemon.record import Recorder
 from lunad.daemon.soak_bytes import DAEMON_INPUT, SENSOR_OUTPUT, compare
 from lunad.daemon.source import Chunk
+from lunad.protocol.commands import CommandReply
 from lunad.protocol.frame import Frame, encode_frame, temp_raw_from_c
 from lunad.protocol.parser import FrameParser
 from lunad.sim.pty_device import DeviceError, PtyDevice
@@ -306,8 +307,9 @@ class Ledger:
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
-        self._parser = FrameParser()
+        self._parser = FrameParser(follow_format_replies=False)  # as the daemon's
         self._carry = b""
+        self._pending: deque[tuple[int, int]] = deque()  # good frames written, not yet found
         self.good_sent = 0  # good frames fully written (equals PtyDevice.frames_sent)
         self.ref_count = 0  # frames a correct parser finds in the bytes written
         self.false_frames = 0  # of those, formed by garbage (not a frame the sensor sent)
@@ -348,7 +350,9 @@ class Ledger:
         """Bytes the device wrote at ``t_ns``; ``ends``: where good frames end in ``data``.
 
         The parser is fed each byte once. The last 8 bytes of earlier writes are kept
-        apart (``_carry``) only to look up a good frame that began in an earlier write.
+        apart (``_carry``) only to read a good frame that began in an earlier write.
+        A good frame the parser holds until the next bytes decide it (its checksum byte
+        could start a header) is matched when it comes out, in a later write.
         """
         with self._lock:
             look = self._carry + data
@@ -356,23 +360,30 @@ class Ledger:
             pos = 0
             feed = self._parser.feed
             for e in ends:
-                items = feed(data[pos:e], 0)
                 good = look[off + e - 9 : off + e]
-                real = (good[2] | good[3] << 8, good[4] | good[5] << 8)
-                last = items[-1] if items else None
-                found = type(last) is Frame and (last.dist, last.amp) == real
-                frames = [f for f in items if type(f) is Frame]
-                self.false_frames += len(frames) - (1 if found else 0)
-                self.eaten += 0 if found else 1
+                self._pending.append((good[2] | good[3] << 8, good[4] | good[5] << 8))
                 self.good_sent += 1
-                for f in frames:
-                    self._reference(f, t_ns)
+                self._account(feed(data[pos:e], 0), t_ns)
                 pos = e
-            for item in feed(data[pos:], 0):
-                if type(item) is Frame:
-                    self.false_frames += 1
-                    self._reference(item, t_ns)
+            self._account(feed(data[pos:], 0), t_ns)
             self._carry = look[-8:]
+
+    def _account(self, items: list[Frame | CommandReply], t_ns: int) -> None:
+        """Match the frames the reference parser found against the good frames written:
+        one that is none of them is false; good ones passed over were eaten."""
+        pending = self._pending
+        for f in items:
+            if type(f) is not Frame:
+                continue
+            key = (f.dist, f.amp)
+            if key in pending:
+                while pending[0] != key:
+                    pending.popleft()
+                    self.eaten += 1
+                pending.popleft()
+            else:
+                self.false_frames += 1
+            self._reference(f, t_ns)
 
     def _reference(self, f: Frame, t_write: int) -> None:
         key = (_raw_m(f.dist), f.amp)

@@ -1,42 +1,55 @@
 """Vectorised decode of a whole TF-Luna byte stream, for replay and analysis.
 
 How this works. ``FrameParser`` walks the bytes one candidate at a time: at a good
-frame (data ``59 59`` with its checksum right, or a ``5A`` reply with a known
-(ID, Len) pair and its checksum right) it takes the frame and jumps past it; anywhere
+frame it takes the frame and jumps past it, unless the frame is ambiguous and a linked
+rival inside it wins (the rules are in ``lunad.protocol.parser``'s docstring); anywhere
 else it drops one byte. ``decode_bulk`` gives exactly the frames that ``FrameParser``
 gives when fed the same bytes (in any chunking), in three steps:
 
-1. numpy finds every *valid candidate*: each offset where a complete frame with a
-   right checksum starts. Data frames are checked for all ``59 59`` offsets at once
-   (one gather of 9-byte windows); ``5A`` replies are rare and checked one by one.
-2. The walk takes a valid candidate iff it starts at or after the end of the last one
-   taken. A candidate that starts at or after the end of *every* earlier candidate is
-   taken whatever happened before it; in a clean stream that is all of them, found
-   with one running maximum. Only the rest (overlaps, from ``59 59`` inside garbage or
-   inside a frame) go through a short sequential pass, in Python.
+1. numpy finds every *taken-if-reached candidate*: each offset where a frame starts that
+   the walk takes if it gets there. Data frames are checked for all ``59 59`` offsets at
+   once (one gather of 9-byte windows: checksum and temperature). Whether one is
+   ambiguous comes from the next ``59 59`` pair after it, whether it is linked from the
+   pair 9 bytes on; only the few that are both ambiguous and unlinked (in garbage) go
+   to ``parser.verdict`` one by one. ``5A`` replies are rare and checked one by one.
+2. The walk takes a candidate iff it starts at or after the end of the last one taken.
+   A verdict depends on the bytes alone, never on the walk, so a candidate that starts
+   at or after the end of *every* earlier candidate is taken whatever happened before
+   it; in a clean stream that is all of them, found with one running maximum. Only the
+   rest (overlaps, from ``59 59`` inside garbage or inside a frame) go through a short
+   sequential pass, in Python.
 3. The end of the stream: the parser stops at the first position it reaches where a
    candidate does not fit in the bytes left (a ``59`` as the last byte, ``59 59``
-   with fewer than 9 bytes, a ``5A`` reply cut short) and keeps the rest buffered.
-   Those positions lie in the last 30 bytes; frames from there on are dropped.
+   with fewer than 9 bytes, a ``5A`` reply cut short) or waits for the bytes after it,
+   and keeps the rest buffered. Those positions lie in the last ``MAX_BUFFERED`` bytes;
+   frames from there on are dropped.
 
 Counters come out as ``FrameParser.stats`` would have them after one ``feed``.
 """
 
 from __future__ import annotations
 
-import bisect
 from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 
-from lunad.protocol.commands import COMMAND_HEADER_BYTE, MAX_REPLY_LEN, REPLY_LENGTHS, CommandId
-from lunad.protocol.frame import DATA_FRAME_LEN, DATA_HEADER_BYTE, DIST_INVALID_A01, OutputFormat
+from lunad.protocol.commands import COMMAND_HEADER_BYTE, REPLY_LENGTHS, CommandId
+from lunad.protocol.frame import (
+    DATA_FRAME_LEN,
+    DATA_HEADER_BYTE,
+    DIST_INVALID_A01,
+    TEMP_RAW_MAX,
+    TEMP_RAW_MIN,
+    OutputFormat,
+)
+from lunad.protocol.parser import DROP, MAX_BUFFERED, TAKE, verdict
 
 _REPLY_LEN_BY_ID = np.zeros(256, dtype=np.int64)
 for _cid, _length in REPLY_LENGTHS.items():
     _REPLY_LEN_BY_ID[int(_cid)] = _length
 _FORMATS = {int(f) for f in OutputFormat}
+_EMPTY = np.zeros(0, dtype=np.int64)
 
 
 @dataclass(frozen=True)
@@ -51,8 +64,8 @@ class BulkFrames:
         fmt: output format each frame was parsed in (``OutputFormat`` values).
         reply_offsets: where each good command reply starts.
         reply_ids: the command ID of each of those replies.
-        checksum_errors, bytes_discarded, buffered, reply_bytes: as ``ParserStats``
-            after one ``feed`` of the whole stream.
+        checksum_errors, implausible_frames, displaced_frames, bytes_discarded,
+            buffered, reply_bytes: as ``ParserStats`` after one ``feed`` of the stream.
     """
 
     offset: npt.NDArray[np.int64]
@@ -63,6 +76,8 @@ class BulkFrames:
     reply_offsets: npt.NDArray[np.int64]
     reply_ids: npt.NDArray[np.uint8]
     checksum_errors: int
+    implausible_frames: int
+    displaced_frames: int
     bytes_discarded: int
     buffered: int
     reply_bytes: int
@@ -81,44 +96,88 @@ class BulkFrames:
         return self.temp_raw / 8.0 - 256.0
 
 
-def decode_bulk(data: bytes | bytearray | memoryview, fmt: int = OutputFormat.CM) -> BulkFrames:
-    """Decode ``data`` as ``FrameParser(fmt).feed(data, t)`` would, into arrays.
+def decode_bulk(
+    data: bytes | bytearray | memoryview,
+    fmt: int = OutputFormat.CM,
+    follow_format_replies: bool = True,
+) -> BulkFrames:
+    """Decode ``data`` as ``FrameParser(fmt, follow_format_replies=...).feed(data, t)``
+    would, into arrays.
 
     Args:
         data: a TF-Luna byte stream, e.g. a recording's chunks concatenated.
-        fmt: the output format at the start (a format reply in the stream switches it).
+        fmt: the output format at the start.
+        follow_format_replies: whether a format reply in the stream switches it. With
+            False the format stays ``fmt`` (bulk decode has no ``expect_format``).
     """
-    a = np.frombuffer(data, dtype=np.uint8)
+    raw = data if isinstance(data, bytes | bytearray) else bytes(data)
+    a = np.frombuffer(raw, dtype=np.uint8)
     n = len(a)
-    empty_i = np.zeros(0, dtype=np.int64)
 
-    # 1. valid candidates -------------------------------------------------------
-    if n >= DATA_FRAME_LEN:
-        h = a[: n - DATA_FRAME_LEN + 1] == DATA_HEADER_BYTE
-        h &= a[1 : n - DATA_FRAME_LEN + 2] == DATA_HEADER_BYTE
-        heads = np.flatnonzero(h)
+    # 1. candidates -------------------------------------------------------------
+    if n >= 2:
+        pairs = np.flatnonzero((a[:-1] == DATA_HEADER_BYTE) & (a[1:] == DATA_HEADER_BYTE))
     else:
-        heads = empty_i
+        pairs = _EMPTY
+    n_heads = int(np.searchsorted(pairs, n - DATA_FRAME_LEN, side="right"))
+    heads = pairs[:n_heads]
     windows = _windows(a, heads)
-    good = windows[:, :8].sum(axis=1, dtype=np.uint8) == windows[:, 8]
-    d_starts = heads[good]
-    d_bad = heads[~good]
+    good_cs = windows[:, :8].sum(axis=1, dtype=np.uint8) == windows[:, 8]
+    temp = windows[:, 6].astype(np.uint16) | (windows[:, 7].astype(np.uint16) << 8)
+    plausible = (temp >= TEMP_RAW_MIN) & (temp <= TEMP_RAW_MAX)
+    d_bad = heads[~good_cs]
+    d_implausible = heads[good_cs & ~plausible]
+    valid = good_cs & plausible
+    # Ambiguous, roughly: the next 59 59 pair starts inside (a rival could), or the frame
+    # ends the data with a 59 whose follower is not in. Linked: a pair right after it.
+    # ``verdict`` looks closer at the ambiguous ones that are not linked.
+    after = np.append(pairs[1:], n)[:n_heads]
+    ambiguous = after - heads < DATA_FRAME_LEN
+    if n_heads and heads[-1] == n - DATA_FRAME_LEN and a[n - 1] == DATA_HEADER_BYTE:
+        ambiguous[-1] = True
+    v_heads = heads[valid]
+    take = ~ambiguous[valid]
+    unsure = np.flatnonzero(~take)
+    d_displaced_l: list[int] = []
+    waits: set[int] = set()
+    if len(unsure):
+        h = v_heads[unsure]
+        k9 = np.minimum(h + DATA_FRAME_LEN, n - 2)
+        linked = (h + DATA_FRAME_LEN + 1 < n) & (a[k9] == DATA_HEADER_BYTE)
+        linked &= a[k9 + 1] == DATA_HEADER_BYTE
+        take[unsure[linked]] = True
+        for k, p in zip(unsure[~linked].tolist(), h[~linked].tolist(), strict=True):
+            v = verdict(raw, p, p + DATA_FRAME_LEN, n)
+            if v == TAKE:
+                take[k] = True
+            elif v == DROP:
+                d_displaced_l.append(p)
+            else:  # WAIT: the stream ends before the bytes that decide it
+                waits.add(p)
+    d_starts = v_heads[take]
 
     r_starts_l: list[int] = []
     r_lens_l: list[int] = []
     r_bad_l: list[int] = []
-    d_list = d_starts.tolist()
-    for p in np.flatnonzero(a[: max(0, n - 2)] == COMMAND_HEADER_BYTE).tolist():
-        length = int(_REPLY_LEN_BY_ID[a[p + 2]])
-        if length == 0 or a[p + 1] != length or p + length > n:
-            continue
-        if _frame_inside(d_list, p, p + length):
-            continue
-        if int(a[p : p + length - 1].sum()) & 0xFF == a[p + length - 1]:
-            r_starts_l.append(p)
-            r_lens_l.append(length)
-        else:
-            r_bad_l.append(p)
+    r_displaced_l: list[int] = []
+    ps = np.flatnonzero(a[: max(0, n - 2)] == COMMAND_HEADER_BYTE)
+    if len(ps):
+        lens = _REPLY_LEN_BY_ID[a[ps + 2]]
+        ok = (lens != 0) & (a[ps + 1] == lens) & (ps + lens <= n)
+        for p, length in zip(ps[ok].tolist(), lens[ok].tolist(), strict=True):
+            if _frame_inside(v_heads, p, p + length):
+                continue
+            if sum(raw[p : p + length - 1]) & 0xFF != raw[p + length - 1]:
+                r_bad_l.append(p)
+                continue
+            v = verdict(raw, p, p + length, n)
+            if v == TAKE:
+                r_starts_l.append(p)
+                r_lens_l.append(length)
+            elif v == DROP:
+                r_displaced_l.append(p)
+            else:  # WAIT
+                waits.add(p)
 
     if r_starts_l:
         starts = np.concatenate([d_starts, np.array(r_starts_l, dtype=np.int64)])
@@ -136,15 +195,15 @@ def decode_bulk(data: bytes | bytearray | memoryview, fmt: int = OutputFormat.CM
     taken = np.ones(len(starts), dtype=bool)
     if len(starts) > 1:
         reach = np.maximum.accumulate(ends)
-        unsure = np.flatnonzero(starts[1:] < reach[:-1]) + 1
-        if len(unsure):
-            is_unsure = np.zeros(len(starts), dtype=bool)
-            is_unsure[unsure] = True
-            flags = is_unsure.tolist()
+        overlapped = np.flatnonzero(starts[1:] < reach[:-1]) + 1
+        if len(overlapped):
+            is_overlapped = np.zeros(len(starts), dtype=bool)
+            is_overlapped[overlapped] = True
+            flags = is_overlapped.tolist()
             s_l = starts.tolist()
             e_l = ends.tolist()
             last_end = 0
-            for k in unsure.tolist():
+            for k in overlapped.tolist():
                 if not flags[k - 1]:
                     last_end = e_l[k - 1]
                 if s_l[k] >= last_end:
@@ -155,15 +214,21 @@ def decode_bulk(data: bytes | bytearray | memoryview, fmt: int = OutputFormat.CM
 
     # 3. where the walk stops ---------------------------------------------------------
     stop = n
-    for p in range(max(0, n - MAX_REPLY_LEN), n):
-        b = a[p]
+    for p in range(max(0, n - MAX_BUFFERED), n):
+        b = raw[p]
         if b == DATA_HEADER_BYTE:
-            cut = p == n - 1 or (a[p + 1] == DATA_HEADER_BYTE and n - p < DATA_FRAME_LEN)
+            cut = p == n - 1 or (
+                raw[p + 1] == DATA_HEADER_BYTE and (n - p < DATA_FRAME_LEN or p in waits)
+            )
         elif b == COMMAND_HEADER_BYTE:
-            cut = n - p < 3 or (
-                _REPLY_LEN_BY_ID[a[p + 2]] == a[p + 1] != 0
-                and n - p < a[p + 1]
-                and not _frame_inside(d_list, p, n)
+            cut = (
+                n - p < 3
+                or p in waits
+                or (
+                    _REPLY_LEN_BY_ID[raw[p + 2]] == raw[p + 1] != 0
+                    and n - p < raw[p + 1]
+                    and not _frame_inside(v_heads, p, n)
+                )
             )
         else:
             continue
@@ -187,20 +252,21 @@ def decode_bulk(data: bytes | bytearray | memoryview, fmt: int = OutputFormat.CM
 
     fmts = np.full(len(f_starts), int(fmt), dtype=np.uint8)
     r_ids = a[r_starts + 2] if len(r_starts) else np.zeros(0, dtype=np.uint8)
-    cur = int(fmt)
-    for p, cid, length in zip(r_starts.tolist(), r_ids.tolist(), r_lens.tolist(), strict=True):
-        if cid == CommandId.OUTPUT_FORMAT and length == 5 and int(a[p + 3]) in _FORMATS:
-            cur = int(a[p + 3])
-            fmts[np.searchsorted(f_starts, p) :] = cur
+    if follow_format_replies:
+        for p, cid, length in zip(r_starts.tolist(), r_ids.tolist(), r_lens.tolist(), strict=True):
+            if cid == CommandId.OUTPUT_FORMAT and length == 5 and raw[p + 3] in _FORMATS:
+                fmts[np.searchsorted(f_starts, p) :] = raw[p + 3]
 
-    bad = np.concatenate([d_bad, np.array(r_bad_l, dtype=np.int64)])
-    bad = bad[bad < stop]
-    if len(bad) and len(starts):
-        i = np.searchsorted(starts, bad, side="right") - 1
-        inside = (i >= 0) & (bad < ends[np.maximum(i, 0)])
-        checksum_errors = int((~inside).sum())
-    else:
-        checksum_errors = len(bad)
+    def visited(at: npt.NDArray[np.int64] | list[int]) -> int:
+        """How many of the offsets ``at`` the walk reaches (before ``stop``, outside
+        every frame it took): the candidates it counted and dropped there."""
+        pos = np.asarray(at, dtype=np.int64)
+        pos = pos[pos < stop]
+        if not len(pos) or not len(starts):
+            return len(pos)
+        i = np.searchsorted(starts, pos, side="right") - 1
+        inside = (i >= 0) & (pos < ends[np.maximum(i, 0)])
+        return int((~inside).sum())
 
     return BulkFrames(
         offset=f_starts.astype(np.int64, copy=False),
@@ -210,7 +276,9 @@ def decode_bulk(data: bytes | bytearray | memoryview, fmt: int = OutputFormat.CM
         fmt=fmts,
         reply_offsets=r_starts.astype(np.int64, copy=False),
         reply_ids=np.asarray(r_ids, dtype=np.uint8),
-        checksum_errors=checksum_errors,
+        checksum_errors=visited(d_bad) + visited(r_bad_l),
+        implausible_frames=visited(d_implausible),
+        displaced_frames=visited(d_displaced_l) + visited(r_displaced_l),
         bytes_discarded=stop - DATA_FRAME_LEN * len(f_starts) - reply_bytes,
         buffered=n - stop,
         reply_bytes=reply_bytes,
@@ -224,11 +292,11 @@ def _windows(a: npt.NDArray[np.uint8], starts: npt.NDArray[np.int64]) -> npt.NDA
     return np.lib.stride_tricks.sliding_window_view(a, DATA_FRAME_LEN)[starts]
 
 
-def _frame_inside(d_starts: list[int], p: int, end: int) -> bool:
+def _frame_inside(good_starts: npt.NDArray[np.int64], p: int, end: int) -> bool:
     """A good data frame lies wholly in ``(p, end)``: the ``5A`` at ``p`` is no reply
     (the streaming parser's rule, ``lunad.protocol.parser._frame_inside``)."""
-    k = bisect.bisect_right(d_starts, p)
-    return k < len(d_starts) and d_starts[k] + DATA_FRAME_LEN <= end
+    k = int(np.searchsorted(good_starts, p, side="right"))
+    return k < len(good_starts) and int(good_starts[k]) + DATA_FRAME_LEN <= end
 
 
 def _covered(starts: npt.NDArray[np.int64], ends: npt.NDArray[np.int64], p: int) -> bool:

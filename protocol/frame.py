@@ -25,6 +25,18 @@ AMP_AMBIENT_OVEREXPOSED = 32768  # amp above this: ambient overexposure, e.g. su
 AMP_SATURATED = 0xFFFF  # amp 65535: overexposure (M05 p.14, p.24)
 DIST_INVALID_A01 = 0xFFFF  # early A01 firmware reports -1 for a weak signal (M01 p.11)
 
+TEMP_OPERATING_C = (-10.0, 60.0)  # ambient operating range, DS p.2, M05 p.8 (TFLUNA.md 5)
+TEMP_PLAUSIBLE_MIN_C = -40.0
+TEMP_PLAUSIBLE_MAX_C = 100.0
+"""Chip temperatures a real frame can carry. The field is the chip's own temperature,
+which runs warm above ambient (M01 p.18 Q2), so the window is the operating range
+widened by 30 degC below (a sensor started cold outside its spec, before it warms
+itself) and 40 degC above (self-heating at 60 degC ambient in the sun). A window that
+garbage forms over a real frame carries a random temperature field; 1121 of the 65536
+raw values fall inside, so the check rejects 98 % of such false frames by itself."""
+TEMP_RAW_MIN = round((TEMP_PLAUSIBLE_MIN_C + 256.0) * 8.0)  # 1728; raw/8 - 256 (M05 p.14)
+TEMP_RAW_MAX = round((TEMP_PLAUSIBLE_MAX_C + 256.0) * 8.0)  # 2848
+
 _FRAME = struct.Struct("<2sHHHB")
 
 

@@ -8,7 +8,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lunad.protocol import CommandReply, Frame, FrameParser, OutputFormat, encode_frame
-from lunad.protocol.commands import encode_reply
+from lunad.protocol.commands import CommandId, decode_reply, encode_reply, set_output_format
+from lunad.protocol.frame import TEMP_RAW_MAX, TEMP_RAW_MIN
+from lunad.protocol.parser import MAX_BUFFERED
 
 HEADER_BYTES = {0x59, 0x5A}
 
@@ -56,15 +58,55 @@ def test_weak_and_overexposed_frames_parse_with_no_distance() -> None:
 
 def test_mm_format() -> None:
     p = FrameParser(OutputFormat.MM)
-    (f,) = p.feed(encode_frame(1234, 500, 0), 0)
+    (f,) = p.feed(encode_frame(1234, 500, 2368), 0)
     assert isinstance(f, Frame) and f.distance_m == 1.234
 
 
 def test_format_echo_switches_unit() -> None:
     p = FrameParser()
-    out = p.feed(encode_reply(0x05, b"\x06") + encode_frame(1500, 900, 0), 0)
+    out = p.feed(encode_reply(0x05, b"\x06") + encode_frame(1500, 900, 2368), 0)
     assert isinstance(out[0], CommandReply)
     assert isinstance(out[1], Frame) and out[1].distance_m == 1.5
+
+
+MM_ECHO = encode_reply(CommandId.OUTPUT_FORMAT, bytes((OutputFormat.MM,)))
+CM_ECHO = encode_reply(CommandId.OUTPUT_FORMAT, bytes((OutputFormat.CM,)))
+
+
+def test_unsolicited_format_reply_is_returned_but_changes_no_unit() -> None:
+    """Five garbage bytes ``5A 05 05 06 6A`` are a good format reply: a parser told not
+    to follow format replies returns it and keeps reading centimetres."""
+    assert MM_ECHO == set_output_format(OutputFormat.MM) == bytes.fromhex("5A 05 05 06 6A")
+    frame = encode_frame(150, 900, 2368)
+    for data in (MM_ECHO + frame, frame + MM_ECHO + frame):
+        p = FrameParser(follow_format_replies=False)
+        out = [x for b in data for x in p.feed(bytes((b,)), 0)]
+        replies = [x for x in out if isinstance(x, CommandReply)]
+        assert [decode_reply(r) for r in replies] == [OutputFormat.MM]
+        assert [(f.fmt, f.distance_m) for f in out if isinstance(f, Frame)][-1] == (
+            OutputFormat.CM,
+            1.5,
+        )
+        assert p.fmt is OutputFormat.CM
+
+
+def test_expected_format_reply_switches_at_its_place_in_the_stream() -> None:
+    """The echo the caller waits for switches the unit between the frames around it, in
+    one read too; it is spent once seen, and other echoes change nothing."""
+    f = encode_frame(1500, 900, 2368)
+    data = f + CM_ECHO + f + MM_ECHO + f + CM_ECHO + f
+    for chunks in ([data], [data[:10], data[10:30], data[30:]]):
+        p = FrameParser(follow_format_replies=False)
+        p.expect_format(OutputFormat.MM)
+        out = [x for c in chunks for x in p.feed(c, 0)]
+        units = [x.fmt for x in out if isinstance(x, Frame)]
+        assert units == [OutputFormat.CM, OutputFormat.CM, OutputFormat.MM, OutputFormat.MM]
+        assert p.stats.replies == 3 and p.fmt is OutputFormat.MM
+    p = FrameParser(follow_format_replies=False)
+    p.expect_format(OutputFormat.MM)
+    p.expect_format(None)
+    p.feed(MM_ECHO, 0)
+    assert p.fmt is OutputFormat.CM
 
 
 def test_bad_checksum_rescans_from_next_byte() -> None:
@@ -91,14 +133,14 @@ def test_buffer_is_bounded_by_one_partial_frame() -> None:
     p.feed(b"\x5a\x1e\x14" + b"A" * 20, 0)  # the start of a 30-byte full-version reply
     assert p.stats.buffered == 23
     p.feed(bytes(range(256)) * 40, 0)
-    assert p.stats.buffered < 30
+    assert p.stats.buffered < MAX_BUFFERED
 
 
 valid_frames = st.builds(
     encode_frame,
     st.integers(0, 0xFFFF),
     st.integers(0, 0xFFFF),
-    st.integers(0, 0xFFFF),
+    st.integers(TEMP_RAW_MIN, TEMP_RAW_MAX),  # a chip temperature the sensor can report
 )
 plain_byte = st.integers(0, 255).filter(lambda b: b not in HEADER_BYTES)
 garbage = st.lists(plain_byte, min_size=1, max_size=20).map(bytes)
@@ -133,7 +175,10 @@ piece = st.one_of(
 def test_any_interleaving_yields_exactly_the_valid_frames(
     pieces: list[tuple[str, bytes]], cuts: list[int]
 ) -> None:
-    data = b"".join(b for _, b in pieces)
+    """Garbage without header bytes: every frame and reply comes out, nothing else.
+    The stream ends with a header, as the next frame would start, so that a last
+    frame with a 0x59 checksum byte is decided rather than held for it."""
+    data = b"".join(b for _, b in pieces) + b"\x59\x59"
     out, p = feed_chunks(data, cuts)
     expected = [b for kind, b in pieces if kind in ("frame", "reply")]
     got = [
@@ -149,7 +194,7 @@ def test_any_interleaving_yields_exactly_the_valid_frames(
     assert s.replies == sum(kind == "reply" for kind, _ in pieces)
     assert s.checksum_errors == n_corrupt
     assert s.bytes_discarded == sum(len(b) for kind, b in pieces if kind in ("garbage", "corrupt"))
-    assert s.buffered == 0
+    assert s.buffered == 2
 
 
 @settings(max_examples=300, deadline=None)
@@ -201,7 +246,7 @@ def test_arbitrary_bytes_never_raise_and_counters_add_up(data: bytes, cuts: list
     assert s.bytes_fed == len(data)
     assert s.bytes_fed == 9 * s.frames + s.reply_bytes + s.bytes_discarded + s.buffered
     assert s.frames == sum(isinstance(x, Frame) for x in out)
-    assert s.buffered < 30
+    assert s.buffered < MAX_BUFFERED
     whole = FrameParser().feed(data, 0)
     assert [_key(x) for x in out] == [_key(x) for x in whole]  # chunking changes nothing
 

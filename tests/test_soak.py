@@ -128,10 +128,12 @@ def test_ledger_exact_stream_settles() -> None:
 
 
 def test_ledger_counts_a_garbage_collision() -> None:
-    """A stray 0x59 before a frame can form a false frame with a good checksum that
-    swallows the real one; a correct parser must publish the false one."""
-    for dist in range(150, 400):
-        real = _frame(dist, 5000)
+    """A stray 0x59 before a frame can form a false frame with a good checksum and a
+    plausible temperature over the real one. The reference parser (as the daemon's)
+    holds it until the next bytes decide: the real frame, followed by the next header,
+    wins, and the ledger counts nothing false and nothing eaten."""
+    for dist in range(150, 800):
+        real = _frame(dist, 2000)  # amp 2000: the false frame's temperature is plausible
         fake = b"\x59" + real[:8]
         if sum(fake[:8]) & 0xFF == fake[8]:
             break
@@ -139,14 +141,17 @@ def test_ledger_counts_a_garbage_collision() -> None:
         pytest.fail("no colliding frame found")
     led = Ledger()
     before = _frame(200, 1000)
+    after = _frame(300, 1000)
     _write(led, before, b"\x59", real, good=(0, 2))
+    _write(led, after, good=(0,))
+    _write(led, _frame(301, 1000), good=(0,))
     s = led.summary()
-    assert (s["frames_sent"], s["reference_frames"]) == (2, 2)
-    assert (s["false_frames"], s["eaten_frames"]) == (1, 1)
-    fake_dist = fake[2] | fake[3] << 8
-    fake_amp = fake[4] | fake[5] << 8
+    assert (s["frames_sent"], s["reference_frames"]) == (4, 4)
+    assert (s["false_frames"], s["eaten_frames"]) == (0, 0)
     assert led.on_range(0, 2.0, 1000)
-    assert led.on_range(1, fake_dist / 100, fake_amp)
+    assert led.on_range(1, dist / 100, 2000)
+    assert led.on_range(2, 3.0, 1000)
+    assert led.on_range(3, 3.01, 1000)
     assert led.settled() and led.summary()["lost"] == 0
 
 
