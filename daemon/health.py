@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 from enum import StrEnum
+from typing import Any
 
 from lunad.protocol.messages import HealthMessage
 from lunad.protocol.parser import ParserStats
@@ -17,11 +18,29 @@ class State(StrEnum):
     RECONNECTING = "reconnecting"  # port closed or failing; retrying
 
 
+_CARRIES_FRAME_RATE = "frame_rate_hz" in HealthMessage.model_fields
+"""Whether the health schema (``lunad.protocol.messages.HealthMessage``, which refuses
+fields it does not declare) has ``frame_rate_hz``; the message carries it only then."""
+
+
 class Health:
     """Summarises the daemon's counters per interval as health messages.
 
     The read loop adds to ``frames`` (every filtered frame) and ``dropouts`` (those
     whose status is ``dropout``) itself: plain attributes, no call per frame.
+
+    Two rates, both frames a second:
+
+    - ``fps``: frames filtered in the interval since the previous health message,
+      over its length; a measurement of that interval. It reads high in a message
+      sent at a state change, milliseconds after the previous one, and low then high
+      around a stall of the daemon (the backlog lands in the next interval).
+    - ``frame_rate_hz`` (sent where the schema has it, ``_CARRIES_FRAME_RATE``): the
+      rate the daemon times frames by (the spacing of a read's frames for the
+      filter, ``--publish-hz`` batching, the silence threshold): the configured rate,
+      or the rate a serial sensor really sends at once it differs by more than 5 %
+      (``lunad.daemon.frame_clock``), or a replay's recorded rate. Steady where
+      ``fps`` moves with every interval.
 
     Args:
         sensor: the sensor name.
@@ -40,13 +59,30 @@ class Health:
         self.frames = 0
         self.dropouts = 0
 
-    def message(self, stats: ParserStats, dropped_sends: int, t_mono_ns: int) -> HealthMessage:
-        """A health message for the interval since the previous one (which it closes)."""
+    def message(
+        self,
+        stats: ParserStats,
+        dropped_sends: int,
+        t_mono_ns: int,
+        frame_rate_hz: float | None = None,
+    ) -> HealthMessage:
+        """A health message for the interval since the previous one (which it closes).
+
+        Args:
+            stats: the parser's counters.
+            dropped_sends: messages the socket refused, since start.
+            t_mono_ns: now, monotonic nanoseconds; ends the interval.
+            frame_rate_hz: the rate the daemon times frames by, Hz (class docstring).
+        """
         dt = (t_mono_ns - self._t_mark) / 1e9
         frames = self.frames - self._frames_mark
         dropouts = self.dropouts - self._dropouts_mark
         self._t_mark, self._frames_mark, self._dropouts_mark = t_mono_ns, self.frames, self.dropouts
+        extra: dict[str, Any] = {}
+        if _CARRIES_FRAME_RATE and frame_rate_hz is not None:
+            extra["frame_rate_hz"] = round(frame_rate_hz, 3)
         return HealthMessage(
+            **extra,
             sensor=self.sensor,
             t_unix_ns=time.time_ns(),
             state=self.state.value,

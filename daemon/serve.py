@@ -21,6 +21,15 @@ On a serial port it sleeps in a read that the kernel holds until a message's wor
 frames has arrived (the tty's VMIN, ``Source.batch``); other sources are read at each
 publish time. It filters every frame and publishes only the latest; ``seq`` still
 counts every frame, so subscribers see how many were folded.
+
+Frame timing: the frames of one read are stamped a frame period apart for the
+filter, a low-power batch is a number of frames, and silence is a number of frame
+periods. The period is the one the sensor really sends at: a ``FrameClock`` fed with
+every read measures it, starting from the configured rate, and a sensor that did not
+take the rate command (a lost reply, firmware that ignores it) is timed by its own
+rate once 1.5 s of frames show it, with one warning. A replay keeps the rate its
+recording gives, and an I2C sensor the configured one (it is triggered on that
+schedule); for both the clock only measures, and a disagreement is logged.
 """
 
 from __future__ import annotations
@@ -38,6 +47,7 @@ from typing import Any
 
 from lunad.daemon.config import Config, ConfigError, SourceSection, load_config
 from lunad.daemon.errors import EX_UNAVAILABLE, PublishError, SourceLostError, SourceOpenError
+from lunad.daemon.frame_clock import FrameClock
 from lunad.daemon.health import Health, State
 from lunad.daemon.notify import Notifier
 from lunad.daemon.publisher import Publisher
@@ -68,6 +78,11 @@ RETRY_LOG_EVERY_S = 60.0  # while a device stays absent, remind the log this oft
 NS = 1_000_000_000
 _CONNECTED = State.CONNECTED
 _DROPOUT = Status.DROPOUT
+
+
+def _hz(rate_hz: float) -> str:
+    """A frame rate for the log: 250, 166.7, 0.5."""
+    return f"{rate_hz:.4g}"
 
 
 def _same_file(a: str | os.PathLike[str], b: str | os.PathLike[str]) -> bool:
@@ -123,6 +138,10 @@ class Daemon:
         """``publish_hz``: no batch for this long means the sensor paused mid-batch."""
         self._reasons_json: dict[tuple[str, ...], bytes] = {}
         self.filter = RangeFilter(cfg.filter.to_filter_config())
+        self._clock = FrameClock(cfg.sensor.frame_rate_hz, follow=cfg.source.kind == "serial")
+        """Measures the rate the sensor sends at; says which rate frames are timed by."""
+        self._checksum_errors_seen = 0
+        """Checksum errors already fed to ``_clock``: frames the sensor sent on its clock."""
         self._apply(cfg)
 
     def _apply(self, cfg: Config) -> None:
@@ -130,19 +149,25 @@ class Daemon:
         if cfg.filter != self.cfg.filter:
             self.filter = RangeFilter(cfg.filter.to_filter_config())
         self.cfg = cfg
-        self._set_frame_rate(self._sensor_rate_hz())
+        nominal, follow = self._sensor_rate_hz(), cfg.source.kind == "serial"
+        if self._clock.nominal_hz != nominal or self._clock.follow != follow:
+            self._clock = FrameClock(nominal, follow)
+        self._set_frame_rate(self._clock.rate_hz)
         self._sensor_json = json.dumps(cfg.sensor.name).encode()
         self._range_topic = topic("range", cfg.sensor.name)
         self._health_topic = topic("health", cfg.sensor.name)
         logging.getLogger("lunad").setLevel(cfg.log_level.upper())
 
     def _sensor_rate_hz(self) -> int:
-        """The rate frames come at, Hz: a replay's recorded one, else the configured one."""
+        """The rate the sensor was set to, Hz: a replay's recorded one, else the
+        configured one. The frame clock starts from it."""
         src = self._source
         return (src.frame_rate_hz if src is not None else None) or self.cfg.sensor.frame_rate_hz
 
-    def _set_frame_rate(self, rate_hz: int) -> None:
-        """Time the loop for a sensor sending ``rate_hz`` frames a second."""
+    def _set_frame_rate(self, rate_hz: float) -> None:
+        """Time the loop for a sensor sending ``rate_hz`` frames a second: the frame
+        period that spaces a read's frames for the filter, the publish period (one
+        frame period without ``publish_hz``), the batch and the silence threshold."""
         cfg = self.cfg
         self._rate_hz = rate_hz
         self._frame_period_ns = int(NS / rate_hz)
@@ -296,7 +321,8 @@ class Daemon:
         backlog came 0.1 s after the last one before it and the rest at ``dt = 0``:
         the filter took the stall's prediction error for noise, and after 4 % of
         such stalls its lux estimate went above 20 klux (docs/filter.md, "Gaps and
-        stalls").
+        stalls"). The period is the frame clock's (``_retime``): it returns here when
+        that changes.
         """
         got = False
         read = src.read
@@ -304,6 +330,9 @@ class Daemon:
         step = self._step
         send = self._send_range
         spacing = self._frame_period_ns
+        clock_feed = self._clock.feed
+        stats = self.parser.stats
+        bad_seen = self._checksum_errors_seen
         pub = self.pub
         health = self.health
         assert pub is not None
@@ -327,16 +356,24 @@ class Daemon:
                 self._record(chunk)
             t_unix = t_read + self._unix_offset_ns
             items = feed(data, t_read)
-            k = len(items)
+            k = n = len(items)
             for item in items:
                 k -= 1
                 if type(item) is Frame:
                     raw_m = item.distance_m
                     send(item, raw_m, step(item, raw_m, t_read - k * spacing), t_read, t_unix)
                 else:
+                    n -= 1
                     self._on_reply(item)  # type: ignore[arg-type]
+            if stats.checksum_errors != bad_seen:
+                n += stats.checksum_errors - bad_seen
+                bad_seen = stats.checksum_errors
+            if n and clock_feed(t_read, n):
+                self._retime()
+                break
             if health.state is not _CONNECTED or self._version_deadline is not None:
                 break
+        self._checksum_errors_seen = bad_seen
         return got
 
     def _read_folded(self, src: Source, until_ns: int) -> bool:
@@ -362,7 +399,9 @@ class Daemon:
         The frames of one read arrived a frame period apart, so the filter gets them
         spaced so, ending at the read time; their messages keep the read time (the
         contract's ``t_mono_ns``). Stamped all alike, the filter would see four frames
-        in five at ``dt = 0``, and the lux estimate would learn from one in five.
+        in five at ``dt = 0``, and the lux estimate would learn from one in five. The
+        period, and with it the batch, is the frame clock's: when that changes
+        (``_retime``) this returns, and the next call batches by the new one.
 
         While the sensor is silent it blocks in the read instead: no wake-ups at
         ``publish_hz``. Returns to the housekeeping loop at ``until_ns`` or as
@@ -375,6 +414,10 @@ class Daemon:
         wait = self._wake.wait
         feed = self.parser.feed
         filter_step = self.filter.step
+        clock_feed = self._clock.feed
+        stats = self.parser.stats
+        bad_seen = self._checksum_errors_seen
+        retimed = False
         period = self._publish_period_ns
         spacing = self._frame_period_ns
         batched = self._batched is src
@@ -435,6 +478,11 @@ class Daemon:
                     health.frames += n
                     health.dropouts += dropouts
                     self._unsent = (last, raw_m, est, t_mono)
+                if stats.checksum_errors != bad_seen:
+                    n += stats.checksum_errors - bad_seen
+                    bad_seen = stats.checksum_errors
+                if n:
+                    retimed = clock_feed(t_mono, n)
                 if not ticking:
                     due = t_mono >= self._next_publish
             elif batched and now - self._last_bytes >= self._batch_stall_ns:
@@ -448,6 +496,9 @@ class Daemon:
                 if not ticking:  # a period from this message, less half a frame of jitter
                     self._next_publish = t_read + period - spacing // 2
                 self._send_range(frame, raw_m, est, t_read, t_read + self._unix_offset_ns)
+            if retimed:
+                self._retime()
+                break
             if chunk is not None and (
                 health.state is not _CONNECTED or self._version_deadline is not None
             ):
@@ -457,6 +508,7 @@ class Daemon:
                 ticking = not batched
             if now >= until_ns:
                 break
+        self._checksum_errors_seen = bad_seen
         return got
 
     def _batch(self, src: Source) -> bool:
@@ -472,6 +524,49 @@ class Daemon:
         self._batched = self._batches = src
         self._batch_stall_ns = 2 * spacing * -(-held // DATA_FRAME_LEN)
         return True
+
+    def _retime(self) -> None:
+        """The frame clock's verdict changed: time frames by its rate, and say so once.
+
+        A serial sensor is timed by the rate it sends at. A replay keeps the rate its
+        recording gives (the live run's), and an I2C sensor the configured one (the
+        source triggers it on that schedule); for them a disagreement is only logged.
+        """
+        clock = self._clock
+        sensor, nominal = _hz(clock.sensor_hz), _hz(clock.nominal_hz)
+        if clock.follow:
+            if clock.differs:
+                log.warning(
+                    "the sensor sends %s frames a second, not the configured %s; "
+                    "timing frames by %s",
+                    sensor,
+                    nominal,
+                    sensor,
+                )
+            else:
+                log.info(
+                    "the sensor sends the configured %s frames a second again; timing frames by %s",
+                    nominal,
+                    nominal,
+                )
+            self._set_frame_rate(clock.rate_hz)
+            return
+        why = (
+            "the rate its recording gives"
+            if self.cfg.source.kind == "replay"
+            else "the rate it is triggered at"
+        )
+        if clock.differs:
+            log.warning(
+                "%s: frames come %s a second, not %s; timing frames by %s, %s",
+                self._source_desc(),
+                sensor,
+                nominal,
+                nominal,
+                why,
+            )
+        else:
+            log.info("%s: frames come %s a second again, %s", self._source_desc(), nominal, why)
 
     def _unbatch(self) -> None:
         """Let the source batching reads for ``publish_hz`` return bytes as they come again."""
@@ -601,12 +696,14 @@ class Daemon:
         self._unix_offset_ns = time.time_ns() - time.monotonic_ns()
         if self._source is not None:
             self._note_recovered_faults(self._source, now)
-        msg = self.health.message(self.parser.stats, pub.dropped_sends, now)
+        msg = self.health.message(self.parser.stats, pub.dropped_sends, now, self._rate_hz)
         pub.send(self._health_topic, encode_health(msg))
         self._next_health = now + int(self.cfg.publish.health_interval_s * NS)
+        clock = self._clock
         self.notifier.status(
             f"{msg.state}, {msg.fps:.1f} fps, dropout {msg.dropout_ratio:.1%}, "
             f"{msg.frames} frames, {msg.checksum_errors} checksum errors"
+            + (f", sensor at {_hz(clock.sensor_hz)} Hz" if clock.differs else "")
         )
 
     def _note_recovered_faults(self, src: Source, now: int) -> None:
@@ -642,14 +739,16 @@ class Daemon:
         failures = self._open_failures
         log.info("opened %s%s", self._source, f" after {failures} failed tries" if failures else "")
         rate = self._sensor_rate_hz()
-        if rate != self._rate_hz:
+        if rate != self.cfg.sensor.frame_rate_hz:
             log.info(
                 "%s: its sensor sent %d frames a second; timing frames by that, not by --rate %d",
                 self._source,
                 rate,
                 self.cfg.sensor.frame_rate_hz,
             )
-            self._set_frame_rate(rate)
+        # a new port may hold another sensor, or one that takes the rate command now
+        self._clock = FrameClock(rate, follow=self.cfg.source.kind == "serial")
+        self._set_frame_rate(rate)
         self._open_failures = 0
         self._recovered_seen = 0
         self._backoff = BACKOFF_FIRST_S
@@ -674,7 +773,7 @@ class Daemon:
             self.health.firmware = str(value)
             log.info("sensor firmware %s", value)
         elif reply.cmd_id == CommandId.SAMPLE_FREQ:
-            wanted = self._rate_hz  # a replay's: the rate its recording was made at
+            wanted = self._sensor_rate_hz()  # a replay's: the rate its recording was made at
             if value != wanted:
                 log.warning("sensor reports frame rate %s Hz, asked for %d Hz", value, wanted)
             else:

@@ -116,7 +116,7 @@ def test_dropout_reasons(running: Any, subscriber: Subscriber, helpers: Any) -> 
 def test_no_good_frame_lost_under_garbage(
     running: Any, subscriber: Subscriber, helpers: Any
 ) -> None:
-    dev, _ = running(rate_hz=250, garbage_rate=0.2, corrupt_rate=0.05, seed=3)
+    dev, d = running(rate_hz=250, garbage_rate=0.2, corrupt_rate=0.05, seed=3)
     time.sleep(2.0)
     dev.pause(3600)
     time.sleep(0.1)  # a frame the device was writing when paused
@@ -129,6 +129,7 @@ def test_no_good_frame_lost_under_garbage(
     )
     assert h.checksum_errors >= dev.frames_corrupted * 0.9
     assert h.bytes_discarded >= dev.garbage_bytes * 0.5
+    assert "timing frames by" not in d.log  # frames with a bad checksum were sent on time
     print(
         f"garbage run: sent {dev.frames_sent}, published {last_seq + 1}, "
         f"corrupted {dev.frames_corrupted}, garbage bytes {dev.garbage_bytes}"

@@ -14,9 +14,12 @@ from typing import Any
 import pytest
 import zmq
 
+from lunad.daemon.source import Chunk, Source
 from lunad.protocol.client import Subscriber
-from lunad.protocol.messages import RangeMessage, decode
+from lunad.protocol.commands import CommandId, encode_reply
+from lunad.protocol.messages import HealthMessage, RangeMessage, decode
 from lunad.sim.pty_device import PtyDevice
+from lunad.sim.virtual_sensor import VirtualSensor
 
 
 def late_subscription_s(endpoint: str, sensor: str, last_seq: int) -> float:
@@ -136,6 +139,150 @@ def test_publish_hz_folds_every_frame_of_a_source_read_as_it_gives_them(
     assert 3 <= gaps["i2c"][len(gaps["i2c"]) // 2] <= 13
 
 
+class RateDeafSensor(VirtualSensor):
+    """A TF-Luna whose firmware answers the frame-rate command as if it took it and goes
+    on sending at its own rate (the virtual sensor proper takes the command)."""
+
+    def handle(self, cmd_id: int, payload: bytes) -> bytes:
+        if cmd_id == CommandId.SAMPLE_FREQ:
+            return encode_reply(cmd_id, payload)
+        return super().handle(cmd_id, payload)
+
+
+def test_publish_hz_holds_for_a_sensor_that_ignores_the_rate_command(
+    device: Callable[..., PtyDevice], start_daemon: Any, endpoint: str, helpers: Any
+) -> None:
+    """Asked for 100 Hz, the sensor goes on at 250: ``--publish-hz 50`` must still mean
+    at most 50 messages a second. Timed by the configured rate, the daemon held reads
+    for two frames (20 ms at 100 Hz, 8 ms at 250) and sent 62.5 messages a second; timed
+    by the measured rate it holds them for five."""
+    dev = device(rate_hz=250, output_enabled=False)
+    dev.sensor = RateDeafSensor(dev.sensor.settings)  # before the daemon talks to it
+    d = start_daemon(
+        "--device", dev.path, "--publish", endpoint, "--rate", "100", "--publish-hz", "50"
+    )  # fmt: skip
+    warning = "the sensor sends 250 frames a second, not the configured 100; timing frames by 250"
+    seqs: list[int] = []
+    health: list[HealthMessage] = []
+    with Subscriber(endpoint) as sub:
+        helpers.wait_for(sub, helpers.is_range, timeout=helpers.startup_s)
+        # 1.5 s of frames tell the daemon; without the warning, measure after 10 s anyway
+        wait_until(lambda: warning in d.log, within_s=10.0)
+        after = time.monotonic_ns()  # what was sent before is still queued: leave it out
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 3.5:
+            m = sub.recv(timeout_s=0.5)
+            if isinstance(m, RangeMessage) and m.t_mono_ns > after:
+                seqs.append(m.seq)
+            elif isinstance(m, HealthMessage) and m.state == "connected":
+                health.append(m)
+        batched = wait_until(lambda: dev.reader_vmin == 5 * 9, within_s=2.0)
+    # messages a second in the sensor's time: it paces frames at 250 Hz, so seq is a
+    # clock that a stalled subscriber or test process cannot stretch
+    rate = (len(seqs) - 1) / ((seqs[-1] - seqs[0]) / 250)
+    fps = sorted(h.fps for h in health)
+    print(f"sensor at 250 Hz, --rate 100 --publish-hz 50: {rate:.1f} messages a second")
+    print(f"health fps {fps}; {d.log.count(warning)} warning(s)")
+    assert len(seqs) >= 10, d.log
+    assert rate <= 55, d.log  # at most 50 a second; a late wake-up only lowers it
+    assert batched  # five frames a read: the batch of 20 ms at 250 Hz
+    assert d.log.count(warning) == 1
+    assert len(fps) >= 2 and 200 <= fps[len(fps) // 2] <= 300  # measured in each interval
+    frame_rate = getattr(health[-1], "frame_rate_hz", None)  # where the schema has it
+    assert frame_rate in (None, 250.0)
+
+
+class _Reads(Source):
+    """Hands out the chunks it was given, one a read, with their own read times."""
+
+    def __init__(self, chunks: list[Chunk], frame_rate_hz: int | None = None) -> None:
+        self._chunks = iter(chunks)
+        self._rate = frame_rate_hz
+
+    @property
+    def frame_rate_hz(self) -> int | None:
+        return self._rate
+
+    def read(self, timeout_s: float | None) -> Chunk | None:
+        return next(self._chunks, None)
+
+    def _read(self, timeout_s: float | None) -> bytes:
+        raise AssertionError("read() does not call it")
+
+    def close(self) -> None:
+        pass
+
+
+@pytest.mark.parametrize("kind", ["serial", "replay"])
+def test_a_reads_frames_are_spaced_by_the_rate_the_sensor_sends_at(
+    tmp_path: Path, kind: str, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Configured 100 Hz, frames at 250 in reads of 5 (the daemon's loop, a source
+    handing out reads with their times). A serial sensor's frames are spaced 10 ms
+    apart for the filter until the frame clock has seen 1.5 s of them, then 4 ms. A
+    replay whose recording says 100 Hz keeps 10 ms, the live run's timing, and logs
+    the disagreement."""
+    from lunad.daemon.config import load_config
+    from lunad.daemon.health import Health, State
+    from lunad.daemon.notify import Notifier
+    from lunad.daemon.serve import Daemon
+    from lunad.protocol.frame import encode_frame
+
+    period, per_read, t0 = 4_000_000, 5, 10**12
+    chunks = [
+        Chunk(encode_frame(200, 1500, 2368) * per_read, t0 + (k + 1) * per_read * period)
+        for k in range(4 * 250 // per_read)  # 4 s
+    ]
+    over = {"source.device": str(tmp_path / "none"), "sensor.frame_rate_hz": 100}
+    if kind == "replay":
+        over = {"source.kind": "replay", "source.path": str(tmp_path / "r.lunarec")}
+    src = _Reads(chunks, frame_rate_hz=100 if kind == "replay" else None)
+    d = Daemon(load_config(None, over), source_opener=lambda _cfg: src, notifier=Notifier(None))
+
+    class Pub:
+        pending = False
+
+        def pump(self) -> None:
+            pass
+
+        def send(self, topic: bytes, payload: bytes) -> None:
+            pass
+
+    stamps: list[int] = []
+    step = d._step
+
+    def recording_step(frame: Any, raw_m: float | None, t_mono_ns: int) -> Any:
+        stamps.append(t_mono_ns)
+        return step(frame, raw_m, t_mono_ns)
+
+    d._step = recording_step  # type: ignore[method-assign]
+    d.pub = Pub()  # type: ignore[assignment]
+    d.health = Health("t", 0)
+    d._open_failures = 0
+    d._try_open(time.monotonic_ns())  # the clock for this source, as a real open makes it
+    d.health.state = State.CONNECTED
+    d._version_deadline = None
+    d._unix_offset_ns = 0
+    try:
+        with caplog.at_level("INFO", logger="lunad.serve"):
+            while d._read_each(src, time.monotonic_ns() + 60 * 10**9):
+                pass
+    finally:
+        d._wake.close()
+    assert len(stamps) == len(chunks) * per_read
+    spacing = [b - a for a, b in itertools.pairwise(stamps)]
+    within = [g for j, g in enumerate(spacing) if (j + 1) % per_read]  # frames of one read
+    first_s, last_s = within[:200], within[-200:]  # the first and the last second
+    assert set(first_s) == {10_000_000}  # the configured rate, until the clock knows better
+    log = caplog.text
+    if kind == "serial":
+        assert set(last_s) == {4_000_000}
+        assert log.count("the sensor sends 250 frames a second, not the configured 100") == 1
+    else:
+        assert set(last_s) == {10_000_000}
+        assert "frames come 250 a second, not 100; timing frames by 100" in log
+
+
 def test_a_slow_publish_rate_does_not_read_as_a_silent_sensor(
     device: Callable[..., PtyDevice], start_daemon: Any, endpoint: str, helpers: Any
 ) -> None:
@@ -170,7 +317,9 @@ def test_publish_hz_batches_again_as_soon_as_frames_flow_after_a_stall(
     the next health message, up to a second of timer wake-ups; on a loaded host, where
     the virtual sensor itself stalls, that was 30 % of the time."""
     dev = device(rate_hz=250, output_enabled=False)
-    start_daemon("--device", dev.path, "--publish", endpoint, "--rate", "250", "--publish-hz", "50")
+    d = start_daemon(
+        "--device", dev.path, "--publish", endpoint, "--rate", "250", "--publish-hz", "50"
+    )  # fmt: skip
     batched = lambda: dev.reader_vmin == 5 * 9  # noqa: E731
     took = []
     with Subscriber(endpoint) as sub:
@@ -187,6 +336,7 @@ def test_publish_hz_batches_again_as_soon_as_frames_flow_after_a_stall(
     print("batched again after " + ", ".join(f"{t * 1000:.0f}" for t in took) + " ms")
     # 20-31 ms measured (a publish period); waiting for the health message took 380-507
     assert max(took) < 0.4
+    assert "timing frames by" not in d.log  # the pauses are not taken for another rate
 
 
 def wait_until(cond: Callable[[], bool], within_s: float) -> bool:
