@@ -42,6 +42,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 FLOOR_TOPIC = b"range/floor"
+IDENT = b'"sensor":"tfluna","run":"0000000000000000"'
+"""``range_ident`` of the messages the pure-work benchmarks encode (a constant: it is
+made once per daemon run)."""
 SENSOR_HZ = 250  # the virtual sensor's frame rate in the serve runs, the TF-Luna's maximum
 # set_output_enabled(True) from lunad.protocol.commands: 5A Len=05 ID=07 payload 01, CS.
 # Spelled out so that the floor does not import lunad.protocol (and with it pydantic);
@@ -382,8 +385,9 @@ def bench_pipeline(
         if reasons is None:
             reasons = rcache[e.reasons] = reasons_json(e.reasons)
         encode_range(
-            b'"tfluna"',
+            IDENT,
             seq,
+            1,
             f.t_mono_ns,
             f.t_mono_ns,
             f.distance_m,
@@ -412,8 +416,9 @@ def bench_pipeline(
             if reasons is None:
                 reasons = rcache[e.reasons] = reasons_json(e.reasons)
             encode_range(
-                b'"tfluna"',
+                IDENT,
                 seq,
+                1,
                 t,
                 t,
                 fr.distance_m,  # type: ignore[union-attr]
@@ -483,7 +488,7 @@ def bench_message(frames: int = 5, gap_s: float = 0.02, messages: int = 200) -> 
         reasons = rcache.get(e.reasons)
         if reasons is None:
             reasons = rcache[e.reasons] = reasons_json(e.reasons)
-        encode_range(b'"tfluna"', i, t, t, last.distance_m, last.amp, last.temp_c, e.strength,
+        encode_range(IDENT, i, frames, t, t, last.distance_m, last.amp, last.temp_c, e.strength,
                      e.range_m, e.sigma_m, e.lux_est, e.status, reasons, e.zone)  # fmt: skip
         (cold if i % 2 == 0 else warm).append(clock() - t0)
     return _median(warm) / 1e3, _median(cold) / 1e3

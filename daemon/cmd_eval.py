@@ -20,7 +20,7 @@ from lunad.daemon.errors import EX_CONFIG
 
 log = logging.getLogger(__name__)
 
-EXIT_CONFIG = EX_CONFIG  # a bad scenario name or file, like any bad flag (DESIGN.md)
+EXIT_CONFIG = EX_CONFIG  # a bad scenario name or file, like any bad flag (docs/architecture.md)
 EXIT_TARGETS_MISSED = 1
 ROBUST_ORACLE_RATIO = 1.5
 """Within 1.5x of the oracle when the noise is scaled (x2 or x0.5): the filter's

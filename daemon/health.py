@@ -1,26 +1,22 @@
-"""What the daemon knows about itself, summarised once a second on ``health/<sensor>``."""
+"""What the daemon knows about itself, summarised once a second on ``health/<sensor>/``."""
 
 from __future__ import annotations
 
 import time
 from enum import StrEnum
-from typing import Any
 
+from lunad.filters import FilterConfig
 from lunad.protocol.messages import HealthMessage
 from lunad.protocol.parser import ParserStats
 
 
 class State(StrEnum):
-    """Link state (DESIGN.md health contract)."""
+    """Link state (docs/messages.md, health ``state``)."""
 
     CONNECTED = "connected"  # bytes are arriving
-    WAITING = "waiting"  # port open, sensor silent
+    WAITING = "waiting"  # port open, sensor silent; or a replay waiting for a subscriber
     RECONNECTING = "reconnecting"  # port closed or failing; retrying
-
-
-_CARRIES_FRAME_RATE = "frame_rate_hz" in HealthMessage.model_fields
-"""Whether the health schema (``lunad.protocol.messages.HealthMessage``, which refuses
-fields it does not declare) has ``frame_rate_hz``; the message carries it only then."""
+    STOPPED = "stopped"  # the daemon's last message: shutting down, or a replay ended
 
 
 class Health:
@@ -35,23 +31,29 @@ class Health:
       over its length; a measurement of that interval. It reads high in a message
       sent at a state change, milliseconds after the previous one, and low then high
       around a stall of the daemon (the backlog lands in the next interval).
-    - ``frame_rate_hz`` (sent where the schema has it, ``_CARRIES_FRAME_RATE``): the
-      rate the daemon times frames by (the spacing of a read's frames for the
-      filter, ``--publish-hz`` batching, the silence threshold): the configured rate,
-      or the rate a serial sensor really sends at once it differs by more than 5 %
+    - ``frame_rate_hz``: the rate the daemon times frames by (the spacing of a
+      read's frames for the filter, ``--publish-hz`` batching, the silence
+      threshold): the configured rate, or the rate a serial sensor really sends at
+      once it differs by more than 5 %
       (``lunad.daemon.frame_clock``), or a replay's recorded rate. Steady where
       ``fps`` moves with every interval.
 
     Args:
         sensor: the sensor name.
         t_mono_ns: when the daemon started (monotonic nanoseconds).
+        run: the daemon's run identity (docs/messages.md ``run``).
+        filter_config: the filter settings in force: the range gate and whether the
+            noise model is the datasheet default.
     """
 
-    def __init__(self, sensor: str, t_mono_ns: int) -> None:
+    def __init__(self, sensor: str, t_mono_ns: int, run: str, filter_config: FilterConfig) -> None:
         self.sensor = sensor
+        self.run = run
         self.state = State.RECONNECTING
         self.last_error: str | None = None
         self.firmware: str | None = None
+        self.serial: str | None = None
+        self.filter_config = filter_config
         self._t_start = t_mono_ns
         self._t_mark = t_mono_ns
         self._frames_mark = 0
@@ -64,7 +66,7 @@ class Health:
         stats: ParserStats,
         dropped_sends: int,
         t_mono_ns: int,
-        frame_rate_hz: float | None = None,
+        frame_rate_hz: float,
     ) -> HealthMessage:
         """A health message for the interval since the previous one (which it closes).
 
@@ -78,21 +80,27 @@ class Health:
         frames = self.frames - self._frames_mark
         dropouts = self.dropouts - self._dropouts_mark
         self._t_mark, self._frames_mark, self._dropouts_mark = t_mono_ns, self.frames, self.dropouts
-        extra: dict[str, Any] = {}
-        if _CARRIES_FRAME_RATE and frame_rate_hz is not None:
-            extra["frame_rate_hz"] = round(frame_rate_hz, 3)
+        fc = self.filter_config
+        default = FilterConfig()
+        configured = (fc.sigma0_m, fc.k_m_per_lux) != (default.sigma0_m, default.k_m_per_lux)
         return HealthMessage(
-            **extra,
             sensor=self.sensor,
+            run=self.run,
             t_unix_ns=time.time_ns(),
+            t_mono_ns=t_mono_ns,
             state=self.state.value,
             frames=stats.frames,
             checksum_errors=stats.checksum_errors,
             bytes_discarded=stats.bytes_discarded,
             fps=round(frames / dt, 2) if dt > 0 else 0.0,
+            frame_rate_hz=round(frame_rate_hz, 3),
             dropout_ratio=round(dropouts / frames, 4) if frames else 0.0,
             dropped_sends=dropped_sends,
             uptime_s=round((t_mono_ns - self._t_start) / 1e9, 3),
             last_error=self.last_error,
             firmware=self.firmware,
+            serial=self.serial,
+            min_range_m=fc.min_range_m,
+            max_range_m=fc.max_range_m,
+            noise_model="configured" if configured else "default",
         )

@@ -6,7 +6,7 @@ Benewake "strongly recommends" triggering on a shared bus, M05 p.14) and note th
 current TICK. Then, per sample, as a small state machine driven by ``_read``::
 
     TRIGGER  write TRIG_ONE_SHOT (0x24 = 1)                  -> READ after the settle
-    READ     one 8-byte block read from 0x00: dist, amp, temp, tick (TFLUNA.md 3.3)
+    READ     one 8-byte block read from 0x00: dist, amp, temp, tick (docs/tfluna.md section 3.3)
              tick moved on   -> one UART data frame out      -> TRIGGER at the next slot
              tick unchanged  -> stale: count it              -> TRIGGER again in 5 ms
              5 stale in a row (ESPHome's hung-sensor rule)   -> REBOOT
@@ -18,8 +18,8 @@ current TICK. Then, per sample, as a small state machine driven by ``_read``::
              itself (a brown-out): count it in ``restarts``
 
 A sensor that restarts by itself comes back in continuous mode, where TRIG_ONE_SHOT is
-ignored (TFLUNA.md 3.2) and an untimed read can catch the registers mid-update (M05 p.14,
-TFLUNA.md 3.3). It NACKs while it boots, so a failed TRIGGER or READ resumes at MODE,
+ignored (docs/tfluna.md §3.2) and an untimed read can catch the registers mid-update (M05 p.14,
+docs/tfluna.md section 3.3). It NACKs while it boots, so a failed TRIGGER or READ resumes at MODE,
 checked; one that restarted between two reads shows as TICK going back (its counter
 starts again at boot). Neither costs a transfer on a sample that goes well.
 
@@ -34,7 +34,7 @@ its own backoff.
 
 Each sample leaves as a 9-byte UART data frame (``encode_frame``), the temperature
 converted from 0.01 degC (I2C, M05 p.34) to the UART's raw/8 - 256 (M05 p.24), so the
-daemon has one parser path and one record format (DESIGN.md). ``write`` emulates the
+daemon has one parser path and one record format (docs/architecture.md). ``write`` emulates the
 UART command layer the daemon speaks at connect: GET_VERSION, SAMPLE_FREQ, OUTPUT_EN
 and SAMPLE_TRIG get the replies a UART sensor would send; other IDs are ignored.
 """
@@ -93,13 +93,14 @@ STALE_REBOOT_AFTER = 5  # consecutive unchanged TICKs that mean a hung sensor (E
 TICK_BACK_MIN = 0x8000  # a TICK step this large, modulo 2**16, is a step back
 TICK_BACK_WITHIN_S = 30.0
 """Judge a TICK step back only this soon after the last TICK. Drivers treat TICK as
-milliseconds (TFLUNA.md 3.2), so it wraps every 65.5 s: within 32.8 s a step of half the
+milliseconds (docs/tfluna.md §3.2), so it wraps every 65.5 s: within 32.8 s a step of half the
 range cannot be a forward one, later it can (on-demand sampling, output paused). A wrong
 guess costs one sample and a MODE check, not a fault: MODE still reads trigger."""
 BACKOFF_FIRST_S = 0.005  # first retry after a failed transfer ...
 BACKOFF_MAX_S = 0.2  # ... doubling up to this
 LOST_AFTER_S = 2.0  # transfers failing this long: the sensor is gone (SourceLostError)
-OPEN_PROBE_TRIES = 3  # a sensor waking from ultra-low power NACKs the first read (TFLUNA.md 3.5)
+OPEN_PROBE_TRIES = 3
+"""A sensor waking from ultra-low power NACKs the first read (docs/tfluna.md §3.5)."""
 SIGNATURE_LEN = len(SIGNATURE)
 VERSION_LEN = 3  # VERSION_REVISION, MINOR, MAJOR at 0x0A..0x0C
 TICK_LEN = 2
@@ -447,7 +448,7 @@ class I2CSource(Source):
     # -- UART command emulation -------------------------------------------------------
 
     def write(self, data: bytes) -> None:
-        """Take UART command frames and answer as a UART TF-Luna would (TFLUNA.md 2.2).
+        """Take UART command frames and answer as a UART TF-Luna would (docs/tfluna.md section 2.2).
 
         GET_VERSION answers from the version registers; SAMPLE_FREQ sets the pacing
         (0: sample only on SAMPLE_TRIG) and echoes the rate in force; OUTPUT_EN

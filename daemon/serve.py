@@ -34,7 +34,6 @@ schedule); for both the clock only measures, and a disagreement is logged.
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import signal
@@ -57,9 +56,16 @@ from lunad.daemon.source import Chunk, Source, open_source
 from lunad.daemon.wakeup import Wakeup
 from lunad.filters import Estimate, RangeFilter, Status
 from lunad.protocol import commands
-from lunad.protocol.commands import CommandId, CommandReply, decode_reply
+from lunad.protocol.commands import CommandId, CommandReply, OutputFormat, decode_reply
 from lunad.protocol.frame import DATA_FRAME_LEN, Frame
-from lunad.protocol.messages import encode_health, encode_range, reasons_json, topic
+from lunad.protocol.messages import (
+    encode_health,
+    encode_range,
+    new_run_id,
+    range_ident,
+    reasons_json,
+    topic,
+)
 from lunad.protocol.parser import FrameParser
 
 log = logging.getLogger("lunad.serve")
@@ -124,9 +130,14 @@ class Daemon:
         self._reload_requested = False
         self._source: Source | None = None
         self.pub: Publisher | None = None
-        self.parser = FrameParser()
+        self.parser = FrameParser(follow_format_replies=False)  # it never asks for mm
         self.recorder: Recorder | None = None
+        self.run_id = new_run_id()
+        """This run's identity in every message (docs/messages.md: ``run``)."""
         self.seq = -1
+        self._seq_sent = -1
+        """``seq`` of the last range message sent: the next one summarises the frames
+        after it (``frames``)."""
         self._unsent: tuple[Frame, float | None, Estimate, int] | None = None
         """``publish_hz``: the latest frame's estimate, until a publish time sends it."""
         self._batched: Source | None = None
@@ -153,7 +164,7 @@ class Daemon:
         if self._clock.nominal_hz != nominal or self._clock.follow != follow:
             self._clock = FrameClock(nominal, follow)
         self._set_frame_rate(self._clock.rate_hz)
-        self._sensor_json = json.dumps(cfg.sensor.name).encode()
+        self._range_ident = range_ident(cfg.sensor.name, self.run_id)
         self._range_topic = topic("range", cfg.sensor.name)
         self._health_topic = topic("health", cfg.sensor.name)
         logging.getLogger("lunad").setLevel(cfg.log_level.upper())
@@ -208,7 +219,9 @@ class Daemon:
         self.pub = publisher
         publisher.start_waker(self._wake_loop)
         now = time.monotonic_ns()
-        health = self.health = Health(self.cfg.sensor.name, now)
+        health = self.health = Health(
+            self.cfg.sensor.name, now, self.run_id, self.cfg.filter.to_filter_config()
+        )
         self._next_health = now
         self._last_bytes = now
         self._backoff = BACKOFF_FIRST_S
@@ -249,6 +262,8 @@ class Daemon:
             if held and not replay_waiting_logged:
                 log.info("replay waits for a subscriber before it starts")
                 replay_waiting_logged = True
+            if held and self._source is None and health.state is not State.WAITING:
+                self._set_state(State.WAITING, now)
             if self._source is None and now >= self._next_open and not held:
                 self._try_open(now)
             if not ready_sent:
@@ -293,6 +308,8 @@ class Daemon:
 
         self._drop_source()
         self.close_recorder()
+        health.state = State.STOPPED  # the last health message: subscribers know it ended
+        self._publish_health(time.monotonic_ns())  # sent by the publisher's linger at close
         notifier.stopping()
         self._wake.close()
         log.info(
@@ -595,9 +612,13 @@ class Daemon:
         reasons_js = self._reasons_json.get(reasons)
         if reasons_js is None:
             reasons_js = self._reasons_json[reasons] = reasons_json(reasons)
+        seq = self.seq
+        frames = seq - self._seq_sent
+        self._seq_sent = seq
         payload = encode_range(
-            self._sensor_json,
-            self.seq,
+            self._range_ident,
+            seq,
+            frames,
             t_mono_ns,
             t_unix_ns,
             raw_m,
@@ -755,6 +776,7 @@ class Daemon:
         self._last_bytes = now
         self._next_publish = 0  # the first read's frames go out: its clock may be a replay's
         self.health.firmware = None  # until this sensor answers: the port may have another
+        self.health.serial = None
         self._set_state(State.WAITING, now)
         self._version_deadline = self._configure(now)
 
@@ -780,6 +802,12 @@ class Daemon:
                 log.info("frame rate %s Hz", value)
         elif reply.cmd_id == CommandId.OUTPUT_EN:
             log.info("sensor output %s", "on" if value else "off")
+        elif reply.cmd_id == CommandId.READ_MANU_BIN:
+            self.health.serial = str(value).strip("\x00 ") or None
+            log.info("sensor serial number %s", self.health.serial)
+        elif reply.cmd_id == CommandId.OUTPUT_FORMAT:
+            if value is not OutputFormat.CM:  # the parser reads centimetres regardless
+                log.warning("sensor reports output format %r, asked for centimetres", value)
         else:
             log.debug("reply to command %#04x: %r", reply.cmd_id, value)
 
@@ -892,6 +920,7 @@ class Daemon:
             self.close_recorder()
             self.recorder = recorder
         self._apply(new)
+        self.health.filter_config = new.filter.to_filter_config()
         self.health.sensor = new.sensor.name
         same_port = new.source.model_copy(update={"record": old.source.record}) == old.source
         if not same_port or new.sensor != old.sensor:  # a new recording keeps the port open

@@ -65,7 +65,7 @@ from lunad.sim.pty_device import DeviceError, PtyDevice
 NS = 1_000_000_000
 SENSOR = "soak"
 RECOVERY_LIMIT_S = 5.0  # every fault must recover within this (issue 7)
-WAITING_LIMIT_S = 2.0  # a silent sensor shows state waiting within this (DESIGN.md)
+WAITING_LIMIT_S = 2.0  # a silent sensor shows state waiting within this (docs/architecture.md)
 RSS_LIMIT_MIB_PER_H = 1.0
 RSS_NOISE_FLOOR_KIB = 256.0  # below this, growth in a short window is allocator noise
 STALL_LIMIT_S = 1.0  # sensor write -> daemon read, while a subscriber is slow

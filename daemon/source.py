@@ -66,7 +66,7 @@ class Source(ABC):
 
         (count since open, description): a transfer retried after an error, a hung
         sensor rebooted. (0, None) for sources that never do either. The daemon
-        reports a rising count on ``health`` (DESIGN.md: a bus error is counted and
+        reports a rising count on ``health`` (docs/architecture.md: a bus error is counted and
         reported, and the daemon keeps running).
         """
         return 0, None

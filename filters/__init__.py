@@ -3,13 +3,11 @@
 from lunad.filters.config import AMP_REF_DEFAULT, FilterConfig
 from lunad.filters.estimate import Estimate, Reason, Status, Zone
 from lunad.filters.noise import lux_of
-from lunad.filters.policy import DropoutPolicy
 from lunad.filters.range_filter import RangeFilter
 from lunad.filters.zone import ZoneClassifier
 
 __all__ = [
     "AMP_REF_DEFAULT",
-    "DropoutPolicy",
     "Estimate",
     "FilterConfig",
     "RangeFilter",

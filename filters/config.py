@@ -22,7 +22,7 @@ AMP_SATURATED = 0xFFFF  # overexposure, M05 p.14
 
 SIGMA0_DEFAULT_M = 0.004
 """sigma0 of paper eq. 2, metres, refitted to the datasheet repeatability table
-(M05 p.9 Table 2, TFLUNA.md section 5): sigma0 / S with S = amp / 2000 gives 0.4 cm
+(M05 p.9 Table 2, docs/tfluna.md section 5): sigma0 / S with S = amp / 2000 gives 0.4 cm
 at amp 2000 (0.49 cm with the 1 cm quantisation, table: 0.5 cm), 0.8 cm at amp
 1000 (table: 1 cm) and 2 cm at amp 400 (table: 2 cm). The paper's own 0.01 would
 be 1 cm at S = 1, twice the datasheet."""
@@ -35,7 +35,7 @@ mean errors for > 50 klux (6.9 cm) and < 5 klux (1.5 cm)."""
 
 RESOLUTION_M = 0.01  # 1 cm output resolution, DS p.2; M05 p.9
 
-LUX_STABLE_MAX = 10_000.0  # paper section V / DESIGN.md: stable region lux < 10 klux
+LUX_STABLE_MAX = 10_000.0  # paper section V (docs/filter.md, zones): stable region lux < 10 klux
 LUX_HIGH_AMBIENT = 20_000.0  # paper section IV.A and Table I: degradation above 20 klux
 S_STABLE_MIN = 0.35  # paper's stable region R > 0.5 and angle < 45 deg: R cos(theta) > 0.354
 

@@ -7,7 +7,7 @@ from typing import NamedTuple
 
 
 class Status(StrEnum):
-    """How far robot code can trust ``range_m`` (DESIGN.md message contract)."""
+    """How far robot code can trust ``range_m`` (docs/messages.md)."""
 
     OK = "ok"
     DEGRADED = "degraded"
@@ -15,13 +15,16 @@ class Status(StrEnum):
 
 
 class Reason(StrEnum):
-    """Why a reading is not ``ok`` (DESIGN.md message contract)."""
+    """Why a reading is not ``ok`` (docs/messages.md says what each means to a robot)."""
 
     WEAK_SIGNAL = "weak_signal"
     SATURATED = "saturated"
-    OUT_OF_RANGE = "out_of_range"
+    TOO_CLOSE = "too_close"
+    TOO_FAR = "too_far"
+    NO_DISTANCE = "no_distance"
     OUTLIER = "outlier"
     HIGH_AMBIENT = "high_ambient"
+    UNRELIABLE_ZONE = "unreliable_zone"
     STALE = "stale"
 
 

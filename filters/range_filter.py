@@ -1,6 +1,6 @@
 """The per-frame cleaning pipeline the daemon runs: gates, noise, tracker, sigma, zone.
 
-How this works, per frame (DESIGN.md "Data flow of one reading"; docs/filter.md has the
+How this works, per frame (docs/architecture.md, "One reading"; docs/filter.md has the
 evidence for each choice):
 
 1. S = amp / amp_ref (paper eq. 1, amp_ref from ``lunad calibrate``).
@@ -55,8 +55,13 @@ sigma, left behind by a manoeuvre) and widens sigma by it."""
 _SATURATED = (Reason.SATURATED,)
 _AMBIENT = (Reason.HIGH_AMBIENT,)
 _WEAK = (Reason.WEAK_SIGNAL,)
-_OUT = (Reason.OUT_OF_RANGE,)
-_WEAK_OUT = (Reason.WEAK_SIGNAL, Reason.OUT_OF_RANGE)
+_CLOSE = (Reason.TOO_CLOSE,)
+_FAR = (Reason.TOO_FAR,)
+_NO_DISTANCE = (Reason.NO_DISTANCE,)
+_WEAK_CLOSE = (Reason.WEAK_SIGNAL, Reason.TOO_CLOSE)
+_WEAK_FAR = (Reason.WEAK_SIGNAL, Reason.TOO_FAR)
+_UNRELIABLE_ZONE = (Reason.UNRELIABLE_ZONE,)
+_AMBIENT_UNRELIABLE = (Reason.HIGH_AMBIENT, Reason.UNRELIABLE_ZONE)
 _OUTLIER = (Reason.OUTLIER,)
 _OUTLIER_AMBIENT = (Reason.OUTLIER, Reason.HIGH_AMBIENT)
 _NONE: tuple[Reason, ...] = ()
@@ -110,6 +115,7 @@ class RangeFilter:
         "_max_feed",
         "_max_in",
         "_max_m",
+        "_mid_m",
         "_min_in",
         "_min_m",
         "_obs2",
@@ -162,6 +168,7 @@ class RangeFilter:
         self._floor = c.sigma_floor_m
         self._min_m = c.min_range_m
         self._max_m = c.max_range_m
+        self._mid_m = 0.5 * (c.min_range_m + c.max_range_m)
         # Gates (policy.py).
         self._amp_strong = first_amp_at_least(c.amp_min, c.s_min, inv_amp_ref)
         self._amp_strong_again = first_amp_at_least(
@@ -255,7 +262,7 @@ class RangeFilter:
             t = last
             dt = 0.0
 
-        # Gates with hysteresis (policy.py: DropoutPolicy.gate).
+        # Gates with hysteresis (policy.py).
         z: float | None = None  # the reading, when it may feed the filter
         reasons: tuple[Reason, ...]
         if amp > AMP_AMBIENT:
@@ -264,7 +271,7 @@ class RangeFilter:
             weak = amp < (self._amp_strong_again if self.weak else self._amp_strong)
             self.weak = weak
             if raw_m is None:
-                reasons = _WEAK if weak else _OUT
+                reasons = _WEAK if weak else _NO_DISTANCE
             else:
                 if self.out_of_range:
                     out = raw_m < self._min_in or raw_m > self._max_in
@@ -273,10 +280,14 @@ class RangeFilter:
                 self.out_of_range = out
                 if amp >= self._amp_strong and self._min_m <= raw_m <= self._max_feed:
                     z = raw_m
-                if weak:
-                    reasons = _WEAK_OUT if out else _WEAK
+                if out:
+                    close = raw_m < self._mid_m
+                    if weak:
+                        reasons = _WEAK_CLOSE if close else _WEAK_FAR
+                    else:
+                        reasons = _CLOSE if close else _FAR
                 else:
-                    reasons = _OUT if out else _NONE
+                    reasons = _WEAK if weak else _NONE
 
         outlier_e = 0.0
         active = self.active
@@ -446,12 +457,14 @@ class RangeFilter:
                     zone = self.zones.classify(lux_zone, s, sigma)
                 if outlier_e:
                     reasons = _OUTLIER_AMBIENT if ambient else _OUTLIER
+                elif zone is _UNRELIABLE:  # ok only where the paper's model holds
+                    reasons = _AMBIENT_UNRELIABLE if ambient else _UNRELIABLE_ZONE
                 elif ambient:
                     reasons = _AMBIENT
                 else:
                     return _new(Estimate, (x, sigma, lux_out, s, _OK, _NONE, zone))
                 return _new(Estimate, (x, sigma, lux_out, s, _DEGRADED, reasons, zone))
-            reasons = _OUT
+            reasons = _CLOSE if x < self._min_m else _FAR
         self.zones.zone = _UNRELIABLE
         if t - self._last_accept_ns > self._stale_ns:
             reasons = (*reasons, Reason.STALE) if reasons else _STALE

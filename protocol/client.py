@@ -1,28 +1,35 @@
-"""A small subscriber for robot code::
+"""A small subscriber for robot code (the contract: docs/messages.md)::
 
-    from lunad.protocol.client import Subscriber
-    with Subscriber("tcp://127.0.0.1:7781") as sub:
-        for msg in sub:
-            print(msg.range_m if msg.kind == "range" else msg.state)
+    from lunad.protocol.client import StaleStream, Subscriber
+    with Subscriber("ipc:///run/lunad/front.sock", sensor="front", stale_after_s=0.2) as sub:
+        try:
+            for msg in sub:
+                if msg.kind == "range" and msg.range_m is not None:
+                    drive(msg.range_m, msg.sigma_m)
+        except StaleStream:
+            stop_the_robot()  # the daemon has gone quiet: act on nothing old
 
 ZeroMQ reconnects a SUB socket by itself, so a daemon restart needs nothing from the
-caller. The subscriber checks every ``range`` message's ``seq``, sensor by sensor, and
-counts the messages it missed in ``lost`` (a daemon restart, seen as ``seq`` going back,
-is not a loss; in the daemon's ``--publish-hz`` mode the gaps are frames folded on
-purpose). A message repeating its sensor's last ``seq``, or a ``health`` message
-repeating its sensor's last one byte for byte, is the daemon's last-value cache
-answering another subscriber's arrival, and is dropped. Messages that do not decode
-are counted in ``bad_messages`` and skipped.
+caller. The subscriber applies the contract's rules:
 
-``lost`` is exact within one run of the daemon. A ``range`` message carries no run
-identity (DESIGN.md), so a restart seen only after the new run's ``seq`` has passed
-the last one seen (the old run was shorter than the time the subscriber took to
-reconnect) reads as a gap and is counted.
+- topics match exactly (``range/<sensor>/``), in the subscription and again here;
+- a ``range`` message whose ``seq`` is at most the last one seen in the same ``run`` is
+  a duplicate (the daemon's last-value cache answering another subscriber's arrival)
+  and is dropped; a ``health`` message repeating its sensor's last one byte for byte
+  likewise;
+- ``lost`` counts the frames missed, ``seq - last - frames`` when positive, so the
+  frames ``--publish-hz`` folds into one message are not loss; a new ``run`` (a daemon
+  restart) starts the count again;
+- with ``stale_after_s``, iterating raises :class:`StaleStream` once no message has
+  come for that long, and ``alive`` says whether one has come within it;
+- messages that do not decode are counted in ``bad_messages`` and skipped.
 """
 
 from __future__ import annotations
 
+import math
 import time
+from collections import deque
 from collections.abc import Iterable, Iterator
 from types import TracebackType
 
@@ -38,21 +45,37 @@ from lunad.protocol.messages import (
     decode,
 )
 
-_HEALTH_PREFIX = f"{HEALTH_TOPIC}/".encode()
 RECONNECT_IVL_MS = 100
 RECONNECT_IVL_MAX_MS = 2000
+RATE_WINDOW_S = 2.0
+"""Messages over this many seconds make ``rate_hz`` (our choice: steady, yet it follows a
+change of ``--publish-hz`` within a couple of seconds)."""
 
-__all__ = ["HealthMessage", "RangeMessage", "Subscriber"]
+__all__ = ["HealthMessage", "RangeMessage", "StaleStream", "Subscriber"]
+
+
+class StaleStream(TimeoutError):
+    """No message came for longer than the subscriber's ``stale_after_s``.
+
+    Attributes:
+        silent_s: seconds since the last message (or since the subscriber started).
+    """
+
+    def __init__(self, endpoint: str, silent_s: float) -> None:
+        super().__init__(f"no message from {endpoint} for {silent_s:.3f} s")
+        self.silent_s = silent_s
 
 
 class Subscriber:
     """Receives typed ``range`` and ``health`` messages from a lunad daemon.
 
     Args:
-        endpoint: where the daemon publishes, e.g. ``tcp://127.0.0.1:7781`` or
-            ``ipc:///run/lunad/front.sock``.
+        endpoint: where the daemon publishes, e.g. ``ipc:///run/lunad/front.sock`` or
+            ``tcp://127.0.0.1:7781``.
         sensor: only this sensor's messages; None for every sensor on the endpoint.
         kinds: which topics to receive, ``"range"`` and/or ``"health"``.
+        stale_after_s: iterating raises :class:`StaleStream` after this many seconds
+            without a message; None waits for ever.
         context: a ZeroMQ context to share; by default the process-wide instance.
     """
 
@@ -61,27 +84,60 @@ class Subscriber:
         endpoint: str,
         sensor: str | None = None,
         kinds: Iterable[str] = (RANGE_TOPIC, HEALTH_TOPIC),
+        stale_after_s: float | None = None,
         context: zmq.Context[zmq.Socket[bytes]] | None = None,
     ) -> None:
+        if stale_after_s is not None and not stale_after_s > 0:
+            raise ValueError(f"stale_after_s must be above 0 seconds, got {stale_after_s!r}")
         self.endpoint = endpoint
         self.sensor = sensor
+        self.stale_after_s = stale_after_s
         self.lost = 0
         self.bad_messages = 0
+        self.duplicates = 0
         self.last_seq: int | None = None
         """``seq`` of the last ``range`` message returned, of whichever sensor."""
-        self._last_seqs: dict[str, int] = {}
+        self._last: dict[str, tuple[str, int]] = {}  # sensor -> (run, seq)
         self._last_health: dict[bytes, bytes] = {}
+        self._t_last = time.monotonic()
+        self._arrivals: deque[float] = deque()
+        self._received_any = False
         ctx = context or zmq.Context.instance()
         self._sock = ctx.socket(zmq.SUB)
         self._sock.setsockopt(zmq.LINGER, 0)
         self._sock.setsockopt(zmq.RECONNECT_IVL, RECONNECT_IVL_MS)
         self._sock.setsockopt(zmq.RECONNECT_IVL_MAX, RECONNECT_IVL_MAX_MS)
-        self._topics = set()
+        self._prefixes: list[bytes] = []
         for kind in kinds:
-            prefix = f"{kind}/{sensor}" if sensor else f"{kind}/"
-            self._topics.add(kind)
+            prefix = f"{kind}/{sensor}/" if sensor else f"{kind}/"
+            self._prefixes.append(prefix.encode())
             self._sock.setsockopt(zmq.SUBSCRIBE, prefix.encode())
         self._sock.connect(endpoint)
+
+    @property
+    def age_s(self) -> float:
+        """Seconds since the last message returned (since the start before the first)."""
+        return time.monotonic() - self._t_last
+
+    @property
+    def alive(self) -> bool:
+        """Whether a message came within ``stale_after_s`` (True without a limit once
+        any message came)."""
+        if self.stale_after_s is None:
+            return self._received_any
+        return self._received_any and self.age_s <= self.stale_after_s
+
+    @property
+    def rate_hz(self) -> float:
+        """Messages returned per second over the last ``RATE_WINDOW_S`` seconds."""
+        self._forget(time.monotonic())
+        return len(self._arrivals) / RATE_WINDOW_S
+
+    def _forget(self, now: float) -> None:
+        """Drop arrival times older than ``RATE_WINDOW_S`` (bounded memory)."""
+        arrivals = self._arrivals
+        while arrivals and now - arrivals[0] > RATE_WINDOW_S:
+            arrivals.popleft()
 
     def recv(self, timeout_s: float | None = None) -> Message | None:
         """The next message, or None when none came within ``timeout_s`` seconds
@@ -89,7 +145,7 @@ class Subscriber:
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
         while True:
             if deadline is not None:
-                left_ms = max(0, int((deadline - time.monotonic()) * 1000))
+                left_ms = max(0, math.ceil((deadline - time.monotonic()) * 1000))
                 if not self._sock.poll(left_ms):
                     return None
             parts = self._sock.recv_multipart()
@@ -97,38 +153,64 @@ class Subscriber:
                 self.bad_messages += 1
                 continue
             topic, payload = parts
-            if self.sensor is not None and topic.split(b"/", 1)[-1] != self.sensor.encode():
+            if not self._wanted(topic):
                 continue
-            health = topic.startswith(_HEALTH_PREFIX)
+            health = topic.startswith(b"health/")
             if health and self._last_health.get(topic) == payload:
+                self.duplicates += 1
                 continue
             try:
                 msg = decode(topic, payload)
             except (ValueError, ValidationError):
                 self.bad_messages += 1
                 continue
-            if isinstance(msg, RangeMessage) and not self._track(msg.sensor, msg.seq):
+            if isinstance(msg, RangeMessage) and not self._track(msg):
+                self.duplicates += 1
                 continue
             if health:
                 self._last_health[topic] = payload
+            now = time.monotonic()
+            self._t_last = now
+            self._received_any = True
+            self._arrivals.append(now)
+            self._forget(now)
             return msg
 
     def __iter__(self) -> Iterator[Message]:
+        """Messages as they come; raises :class:`StaleStream` after ``stale_after_s``
+        seconds of silence (never without a limit)."""
         while True:
-            msg = self.recv()
+            if self.stale_after_s is None:
+                msg = self.recv()
+            else:
+                left = self.stale_after_s - self.age_s
+                msg = self.recv(max(0.0, left))
+                if msg is None and self.age_s >= self.stale_after_s:
+                    raise StaleStream(self.endpoint, self.age_s)
             if msg is not None:
                 yield msg
 
-    def _track(self, sensor: str, seq: int) -> bool:
-        """Note ``sensor``'s ``seq``; False for a repeat of its last one (a cache replay)."""
-        last = self._last_seqs.get(sensor)
-        if last is not None:
-            if seq == last:
+    def _wanted(self, topic: bytes) -> bool:
+        """Whether ``topic`` is exactly one this subscriber asked for (v2 topics end in
+        ``/``; ZeroMQ matched only their prefix)."""
+        if not topic.endswith(b"/"):
+            return False
+        if self.sensor is None:
+            return any(topic.startswith(p) for p in self._prefixes) and topic.count(b"/") == 2
+        return topic in self._prefixes
+
+    def _track(self, msg: RangeMessage) -> bool:
+        """Note ``msg``'s ``seq``; False for a duplicate (``seq`` not beyond the last of
+        its run)."""
+        last = self._last.get(msg.sensor)
+        if last is not None and last[0] == msg.run:
+            if msg.seq <= last[1]:
                 return False
-            if seq > last + 1:
-                self.lost += seq - last - 1
-        self._last_seqs[sensor] = seq
-        self.last_seq = seq
+            gap = msg.seq - last[1] - msg.frames
+            if gap > 0:
+                self.lost += gap
+        self._last[msg.sensor] = (msg.run, msg.seq)
+        self.last_seq = msg.seq
         return True
 
     def close(self) -> None:

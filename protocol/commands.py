@@ -1,8 +1,8 @@
-"""TF-Luna UART command frames: ``5A Len ID payload CS`` (TFLUNA.md section 2).
+"""TF-Luna UART command frames: ``5A Len ID payload CS`` (docs/tfluna.md section 2).
 
 ``Len`` is the total frame length including head and checksum, ``CS`` the low 8 bits
 of the sum of every byte before it, payloads are little-endian (M05 p.12-13, M01 p.14).
-Checksums are computed here, never copied: the manuals' tables have typos (TFLUNA.md
+Checksums are computed here, never copied: the manuals' tables have typos (docs/tfluna.md
 section 2.3). Encoders raise ``ValueError`` for values the sensor does not accept
 (caller misuse); decoding what the sensor sent never raises, see ``decode_reply``.
 """
@@ -20,7 +20,7 @@ COMMAND_HEADER_BYTE = 0x5A
 
 
 class CommandId(IntEnum):
-    """Command IDs of A05 firmware (M05 App. II p.26-33, TFLUNA.md 2.2)."""
+    """Command IDs of A05 firmware (M05 App. II p.26-33, docs/tfluna.md section 2.2)."""
 
     GET_VERSION = 0x01
     SOFT_RESET = 0x02
@@ -55,7 +55,7 @@ REPLY_LENGTHS: dict[int, int] = {
     CommandId.AMP_THRESHOLD: 7,
     CommandId.DIST_LIMIT: 9,
 }
-"""Total length of each reply the sensor sends (TFLUNA.md 2.2; 0x12 and 0x14 computed
+"""Total length of each reply the sensor sends (docs/tfluna.md section 2.2; 0x12 and 0x14 computed
 from their layouts). The parser accepts a ``5A`` frame only with a known (ID, Len)
 pair, so a stray 0x5A in garbage costs at most 30 bytes of look-ahead."""
 
@@ -239,8 +239,15 @@ def get_full_version() -> bytes:
 
 
 def startup(rate_hz: int) -> bytes:
-    """What a host sends at connect: firmware version query, frame rate, output on."""
-    return get_version() + set_frame_rate(rate_hz) + set_output_enabled(True)
+    """What a host sends at connect: firmware version query, centimetre output (a
+    sensor saved in mm would read 2 m as 20), frame rate, output on, serial number."""
+    return (
+        get_version()
+        + set_output_format(OutputFormat.CM)
+        + set_frame_rate(rate_hz)
+        + set_output_enabled(True)
+        + read_serial_number()
+    )
 
 
 def decode_reply(reply: CommandReply) -> ReplyValue:

@@ -1,6 +1,6 @@
 """TF-Luna UART data frames: the 9-byte ``59 59 Dist Amp Temp CS`` frame.
 
-Layout (TF-Luna manual M05 p.24, TFLUNA.md section 1.2), little-endian::
+Layout (TF-Luna manual M05 p.24, docs/tfluna.md section 1.2), little-endian::
 
     byte  0    1    2      3      4     5     6      7      8
           0x59 0x59 Dist_L Dist_H Amp_L Amp_H Temp_L Temp_H CS
@@ -16,7 +16,7 @@ import struct
 from enum import IntEnum
 from typing import NamedTuple
 
-DATA_HEADER = b"\x59\x59"  # UART data frame header, M05 p.24 (TFLUNA.md 1.2)
+DATA_HEADER = b"\x59\x59"  # UART data frame header, M05 p.24 (docs/tfluna.md section 1.2)
 DATA_HEADER_BYTE = 0x59
 DATA_FRAME_LEN = 9  # M05 p.24
 
@@ -25,7 +25,7 @@ AMP_AMBIENT_OVEREXPOSED = 32768  # amp above this: ambient overexposure, e.g. su
 AMP_SATURATED = 0xFFFF  # amp 65535: overexposure (M05 p.14, p.24)
 DIST_INVALID_A01 = 0xFFFF  # early A01 firmware reports -1 for a weak signal (M01 p.11)
 
-TEMP_OPERATING_C = (-10.0, 60.0)  # ambient operating range, DS p.2, M05 p.8 (TFLUNA.md 5)
+TEMP_OPERATING_C = (-10.0, 60.0)  # ambient operating range, DS p.2, M05 p.8 (docs/tfluna.md §5)
 TEMP_PLAUSIBLE_MIN_C = -40.0
 TEMP_PLAUSIBLE_MAX_C = 100.0
 """Chip temperatures a real frame can carry. The field is the chip's own temperature,

@@ -1,46 +1,70 @@
-"""The published message contract (DESIGN.md, "Published messages").
+"""The published message contract, schema v2 (docs/messages.md).
 
-Every message is two ZeroMQ frames: a topic (``range/<sensor>`` or ``health/<sensor>``)
-and a UTF-8 JSON object. The pydantic models are the schema robot code can rely on and
-decode with; the daemon builds the JSON of ``range`` messages directly with
-``encode_range`` (no per-frame validation on the hot path), and the tests check that
-what it builds validates against the models.
+Every message is two ZeroMQ frames: a topic (``range/<sensor>/`` or ``health/<sensor>/``,
+ending in ``/`` so that a subscription matches one sensor exactly) and a UTF-8 JSON
+object. The pydantic models are the schema robot code can rely on and decode with; the
+JSON Schemas shipped beside this module (``schema/range.v2.json``,
+``schema/health.v2.json``) are generated from them (``json_schemas``). The daemon builds
+the JSON of ``range`` messages directly with ``encode_range`` (no per-frame validation
+on the hot path), and the tests check that what it builds validates against both.
 """
 
 from __future__ import annotations
 
 import json
 import math
-from typing import Annotated, ClassVar, Final, Literal
+from typing import Annotated, Any, ClassVar, Final, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 RANGE_TOPIC = "range"
 HEALTH_TOPIC = "health"
 
-MIN_RANGE_M = 0.2  # blind zone, M05 p.10
-MAX_RANGE_M = 8.0  # range at 90 % reflectivity, DS p.2
-FOV_RAD = math.radians(2.0)  # 2 degrees, DS p.2
-RADIATION_TYPE: Final = "infrared"  # 850 nm VCSEL, DS p.2
+MIN_RANGE_M = 0.2  # blind zone, M05 p.10 (docs/tfluna.md section 5)
+MAX_RANGE_M = 8.0  # range at 90 % reflectivity, DS p.2 (docs/tfluna.md section 5)
+FOV_RAD = math.radians(2.0)  # 2 degrees, DS p.2 (docs/tfluna.md section 5)
+RADIATION_TYPE: Final = "infrared"  # 850 nm VCSEL, DS p.2 (docs/tfluna.md section 5)
+
+U64_MAX = (1 << 64) - 1
+I64_MAX = (1 << 63) - 1
+U32_MAX = (1 << 32) - 1
 
 Status = Literal["ok", "degraded", "dropout"]
-ReasonName = Literal["weak_signal", "saturated", "out_of_range", "outlier", "high_ambient", "stale"]
+ReasonName = Literal[
+    "weak_signal",
+    "saturated",
+    "too_close",
+    "too_far",
+    "no_distance",
+    "outlier",
+    "high_ambient",
+    "unreliable_zone",
+    "stale",
+]
 ZoneName = Literal["stable", "marginal", "unreliable"]
-State = Literal["connected", "waiting", "reconnecting"]
+State = Literal["connected", "waiting", "reconnecting", "stopped"]
+NoiseModel = Literal["default", "configured"]
+RunId = Annotated[str, Field(pattern=r"^[0-9a-f]{16}$")]
+SensorName = Annotated[str, Field(pattern=r"^[A-Za-z0-9_.-]{1,64}$")]
+U64 = Annotated[int, Field(ge=0, le=U64_MAX)]
+I64 = Annotated[int, Field(ge=-I64_MAX - 1, le=I64_MAX)]
 
 
 class RangeMessage(BaseModel):
-    """One parsed data frame, cleaned (topic ``range/<sensor>``). Distances in metres."""
+    """One cleaned reading (topic ``range/<sensor>/``). Distances in metres, times in
+    nanoseconds; docs/messages.md says what each field means to a robot."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     kind: ClassVar[str] = RANGE_TOPIC
 
-    v: Literal[1] = 1
-    sensor: str
-    seq: Annotated[int, Field(ge=0)]
-    t_mono_ns: int
-    t_unix_ns: int
+    v: Literal[2] = 2
+    sensor: SensorName
+    run: RunId
+    seq: U64
+    frames: Annotated[int, Field(ge=1, le=U64_MAX)] = 1
+    t_mono_ns: I64
+    t_unix_ns: I64
     raw_m: float | None
     amp: Annotated[int, Field(ge=0, le=0xFFFF)]
     temp_c: float
@@ -51,44 +75,80 @@ class RangeMessage(BaseModel):
     status: Status
     reasons: list[ReasonName]
     zone: ZoneName
+    cached: bool = False
+    age_ms: Annotated[int, Field(ge=0, le=U32_MAX)] = 0
 
 
 class HealthMessage(BaseModel):
-    """The daemon's state, about once a second and at every change (topic ``health/<sensor>``)."""
+    """The daemon's state, about once a second, at every change and a last one when it
+    stops (topic ``health/<sensor>/``)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     kind: ClassVar[str] = HEALTH_TOPIC
 
-    v: Literal[1] = 1
-    sensor: str
-    t_unix_ns: int
+    v: Literal[2] = 2
+    sensor: SensorName
+    run: RunId
+    t_unix_ns: I64
+    t_mono_ns: I64
     state: State
-    frames: Annotated[int, Field(ge=0)]
-    checksum_errors: Annotated[int, Field(ge=0)]
-    bytes_discarded: Annotated[int, Field(ge=0)]
+    frames: U64
+    checksum_errors: U64
+    bytes_discarded: U64
     fps: Annotated[float, Field(ge=0)]
+    frame_rate_hz: Annotated[float, Field(ge=0)]
     dropout_ratio: Annotated[float, Field(ge=0, le=1)]
-    dropped_sends: Annotated[int, Field(ge=0)]
+    dropped_sends: U64
     uptime_s: Annotated[float, Field(ge=0)]
     last_error: str | None
     firmware: str | None
+    serial: str | None = None
     min_range_m: float = MIN_RANGE_M
     max_range_m: float = MAX_RANGE_M
     fov_rad: float = FOV_RAD
     radiation_type: Literal["infrared"] = RADIATION_TYPE
+    noise_model: NoiseModel = "default"
 
 
 Message = RangeMessage | HealthMessage
 
 
+def json_schemas() -> dict[str, dict[str, Any]]:
+    """The JSON Schema of each message kind, keyed by its file name in ``schema/``
+    (``python -m lunad.protocol.messages`` writes them there)."""
+    out = {}
+    for model in (RangeMessage, HealthMessage):
+        doc = model.model_json_schema()
+        doc["required"] = sorted(doc["properties"])  # every field is always sent
+        doc["$schema"] = "https://json-schema.org/draft/2020-12/schema"
+        doc["$id"] = f"https://lunad.invalid/schema/{model.kind}.v{SCHEMA_VERSION}.json"
+        out[f"{model.kind}.v{SCHEMA_VERSION}.json"] = doc
+    return out
+
+
 def topic(kind: str, sensor: str) -> bytes:
-    """The ZeroMQ topic frame for ``kind`` ('range' or 'health') of ``sensor``."""
-    return f"{kind}/{sensor}".encode()
+    """The ZeroMQ topic frame for ``kind`` ('range' or 'health') of ``sensor``: it ends
+    in ``/``, so a subscription to it matches this sensor only."""
+    return f"{kind}/{sensor}/".encode()
+
+
+def new_run_id() -> str:
+    """A fresh run identity: 16 hex digits from the OS's random source."""
+    import secrets
+
+    return secrets.token_hex(8)
+
+
+def range_ident(sensor: str, run: str) -> bytes:
+    """The constant part of a sensor's ``range`` messages, JSON-encoded once:
+    ``"sensor":...,"run":...`` (for ``encode_range``)."""
+    return b'"sensor":%b,"run":%b' % (json.dumps(sensor).encode(), json.dumps(run).encode())
 
 
 def encode_range(
-    sensor_json: bytes,
+    ident: bytes,
     seq: int,
+    frames: int,
     t_mono_ns: int,
     t_unix_ns: int,
     raw_m: float | None,
@@ -102,18 +162,19 @@ def encode_range(
     reasons_json: bytes,
     zone: str,
 ) -> bytes:
-    """JSON of a ``range`` message, built without validation (hot path).
+    """JSON of a live ``range`` message, built without validation (hot path).
 
     Args:
-        sensor_json: the sensor name already JSON-encoded (with quotes), done once.
+        ident: ``range_ident(sensor, run)``, done once.
         reasons_json: the reasons list already JSON-encoded, e.g. ``b'["weak_signal"]'``.
         Everything else as in ``RangeMessage``; metres are rounded to 0.1 mm (sigma to
-        0.01 mm), lux to 0.1.
+        0.01 mm), lux to 0.1. ``cached`` is false and ``age_ms`` 0: a live message.
     """
     if raw_m is not None and range_m is not None and sigma_m is not None and lux_est is not None:
         return _RANGE_JSON % (
-            sensor_json,
+            ident,
             seq,
+            frames,
             t_mono_ns,
             t_unix_ns,
             raw_m,
@@ -128,8 +189,9 @@ def encode_range(
             zone.encode(),
         )
     return _RANGE_JSON_NULLS % (
-        sensor_json,
+        ident,
         seq,
+        frames,
         t_mono_ns,
         t_unix_ns,
         b"null" if raw_m is None else b"%.4f" % raw_m,
@@ -146,26 +208,45 @@ def encode_range(
 
 
 _RANGE_JSON = (
-    b'{"v":1,"sensor":%b,"seq":%d,"t_mono_ns":%d,"t_unix_ns":%d,"raw_m":%.4f,"amp":%d,'
+    b'{"v":2,%b,"seq":%d,"frames":%d,"t_mono_ns":%d,"t_unix_ns":%d,"raw_m":%.4f,"amp":%d,'
     b'"temp_c":%.3f,"strength":%.5f,"range_m":%.4f,"sigma_m":%.5f,"lux_est":%.1f,'
-    b'"status":"%b","reasons":%b,"zone":"%b"}'
+    b'"status":"%b","reasons":%b,"zone":"%b","cached":false,"age_ms":0}'
 )
 """One bytes ``%`` format for a whole message with every value present (most frames).
 
 Bytes and one template, rather than a str template with f-string floats and
-``.encode()``: one formatting path instead of three, the same output byte for byte.
-5.2 against 7.4 us a message hot, 39 against 59 us with the CPU caches evicted before
-each message (docs/performance.md, "Session 5"). Fixed decimals (``1.9800``) parse to
-the same float as ``round(x, 4)``; ``tests/test_messages.py`` checks that on random
-values."""
+``.encode()``: one formatting path instead of three, the same output byte for byte
+(docs/performance.md measures it). Fixed decimals (``1.9800``) parse to the same float
+as ``round(x, 4)``; ``tests/test_messages.py`` checks that on random values."""
 
 _RANGE_JSON_NULLS = (
-    b'{"v":1,"sensor":%b,"seq":%d,"t_mono_ns":%d,"t_unix_ns":%d,"raw_m":%b,"amp":%d,'
+    b'{"v":2,%b,"seq":%d,"frames":%d,"t_mono_ns":%d,"t_unix_ns":%d,"raw_m":%b,"amp":%d,'
     b'"temp_c":%.3f,"strength":%.5f,"range_m":%b,"sigma_m":%b,"lux_est":%b,'
-    b'"status":"%b","reasons":%b,"zone":"%b"}'
+    b'"status":"%b","reasons":%b,"zone":"%b","cached":false,"age_ms":0}'
 )
 """The same message with ``raw_m``, ``range_m``, ``sigma_m`` and ``lux_est`` passed in
 already formatted, so that each can be ``null``."""
+
+
+def as_cached(kind: str, payload: bytes, age_ms: int, stale_after_ms: int) -> bytes:
+    """The last-value cache's copy of a message for a subscriber that just connected.
+
+    A ``range`` message gets ``cached`` true and its ``age_ms``; once older than
+    ``stale_after_ms`` it becomes a ``dropout`` with the reason ``stale`` and a null
+    range (docs/messages.md, "Cached and stale messages"). A ``health`` message is
+    sent as it was. Rare (once per topic per connecting subscriber), so validated.
+    """
+    if kind != RANGE_TOPIC:
+        return payload
+    msg = RangeMessage.model_validate_json(payload)
+    age = max(0, min(U32_MAX, age_ms))
+    update: dict[str, Any] = {"cached": True, "age_ms": age}
+    if age > stale_after_ms:
+        reasons = [r for r in msg.reasons if r != "stale"] + ["stale"]
+        update.update(
+            status="dropout", range_m=None, sigma_m=None, reasons=reasons, zone="unreliable"
+        )
+    return msg.model_copy(update=update).model_dump_json().encode()
 
 
 def encode_health(msg: HealthMessage) -> bytes:
@@ -180,7 +261,7 @@ def decode(topic_frame: bytes, payload: bytes) -> Message:
         ValueError: unknown topic kind, or a payload that breaks the schema
             (pydantic's ``ValidationError`` is a ``ValueError``).
     """
-    kind = topic_frame.split(b"/", 1)[0]
+    kind = topic_frame.split(b"/", 1)[0]  # v2 topics end in "/", v1 ones did not
     if kind == RANGE_TOPIC.encode():
         return RangeMessage.model_validate_json(payload)
     if kind == HEALTH_TOPIC.encode():
@@ -191,3 +272,17 @@ def decode(topic_frame: bytes, payload: bytes) -> Message:
 def reasons_json(reasons: tuple[str, ...]) -> bytes:
     """The JSON list of reason names (cached by the caller per distinct tuple)."""
     return json.dumps(list(reasons), separators=(",", ":")).encode()
+
+
+def _write_schemas() -> None:
+    """Write ``json_schemas()`` into this package's ``schema/`` folder."""
+    from pathlib import Path
+
+    folder = Path(__file__).with_name("schema")
+    folder.mkdir(exist_ok=True)
+    for name, doc in json_schemas().items():
+        (folder / name).write_text(json.dumps(doc, indent=2, sort_keys=True) + "\n")
+
+
+if __name__ == "__main__":
+    _write_schemas()

@@ -7,7 +7,7 @@ is a *good frame* when its checksum is right and, for a data frame, its temperat
 field lies in the range a real chip reports (``TEMP_RAW_MIN..TEMP_RAW_MAX``); a reply
 is no candidate when a whole good data frame lies inside its declared length. Anything
 else drops exactly one byte and the scan resumes from the next byte, so garbage never
-costs the good frame that follows it (TFLUNA.md section 10; pyubx2 skips a whole
+costs the good frame that follows it (docs/tfluna.md section 10; pyubx2 skips a whole
 declared length and can lose a frame starting inside it). Bytes that start no frame
 are counted as discarded.
 

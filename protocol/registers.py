@@ -1,9 +1,9 @@
-"""TF-Luna I2C register map (A05 firmware, M05 Appendix III p.34-35; TFLUNA.md 3.2).
+"""TF-Luna I2C register map (A05 firmware, M05 Appendix III p.34-35; docs/tfluna.md section 3.2).
 
 Registers are 8-bit and auto-increment, multi-byte values little-endian. In I2C mode
 the distance is always centimetres and the temperature is 0.01 degC (unlike the UART
 frame's raw/8 - 256). Read 0x00..0x07 in one block transaction so that distance, amp,
-temperature and tick come from one sample (TFLUNA.md 3.3).
+temperature and tick come from one sample (docs/tfluna.md section 3.3).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from enum import IntEnum
 
 I2C_ADDRESS_DEFAULT = 0x10  # 7-bit, M05 p.13
 I2C_WRITE_SETTLE_S = 0.1  # wait after a write before reading back, M05 p.14
-I2C_REBOOT_SETTLE_S = 1.0  # wait after a reboot, embedded-tfluna practice (TFLUNA.md 3.4)
+I2C_REBOOT_SETTLE_S = 1.0  # wait after a reboot, embedded-tfluna practice (docs/tfluna.md §3.4)
 SIGNATURE = b"LUNA"  # registers 0x3C..0x3F on A05 firmware, M05 p.35
 SAMPLE_BLOCK_LEN = 8  # DIST, AMP, TEMP, TICK: 0x00..0x07
 
@@ -66,14 +66,15 @@ RESTORE_VALUE = 0x01  # write to RESTORE_FACTORY_DEFAULTS
 
 
 class Mode(IntEnum):
-    """MODE register values (M05 p.34)."""
+    """MODE register values (M05 p.35)."""
 
     CONTINUOUS = 0x00
     TRIGGER = 0x01
 
 
 class Enable(IntEnum):
-    """ENABLE register values, A05 polarity (1 = LiDAR on; M03 had it reversed, TFLUNA.md 8)."""
+    """ENABLE register values, A05 polarity (1 = LiDAR on; M03 had it reversed,
+    docs/tfluna.md §8)."""
 
     OFF = 0x00
     ON = 0x01

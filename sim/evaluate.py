@@ -38,7 +38,7 @@ frames are not within ``STEP_SETTLE_S`` after a distance step):
 lunad's RMSE is compared with the oracle's and median5's on the frames where both
 published (a method that drops the hardest frames must not score better for it).
 
-This is the only sim module that imports lunad.filters (DESIGN.md).
+This is the only sim module that imports lunad.filters (docs/architecture.md).
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 How this works: ``FakeSMBus`` stands where ``smbus2.SMBus`` would, as pyserial's
 ``loop://`` stands for a port. Behind it is a 256-byte register file laid out per
-``lunad.protocol.registers`` (M05 Appendix III p.34-35, TFLUNA.md 3.2): signature
+``lunad.protocol.registers`` (M05 Appendix III p.34-35, docs/tfluna.md section 3.2): signature
 ``LUNA`` at 0x3C, firmware version at 0x0A..0x0C, serial number at 0x10, MODE, ENABLE,
 FPS and the limits at their factory values. Reads and writes auto-increment the
 register pointer (M05 p.13). Writing 1 to TRIG_ONE_SHOT in trigger mode draws one
@@ -17,7 +17,7 @@ Faults, for tests: ``stall(n)`` (the next n triggers do not update the sample: a
 sensor, cured by a reboot), ``nack(n)`` (the next n transfers raise ``OSError`` errno
 121, as smbus2 does for a NACK), ``absent`` (every transfer NACKs),
 ``reboot_busy_s`` (the sensor NACKs for that long after a reboot; real ones are "not
-accessible during few seconds", TFLUNA.md 3.4) and ``brown_out()`` (the same restart,
+accessible during few seconds", docs/tfluna.md section 3.4) and ``brown_out()`` (the same restart,
 unasked, as after a supply dip). Counters and logs of every call let a test assert what
 went over the bus.
 
@@ -57,9 +57,10 @@ from lunad.sim.virtual_sensor import FIRMWARE, SERIAL_NUMBER
 SMBUS_BLOCK_MAX = 32  # smbus2 refuses longer block transfers (I2C_SMBUS_BLOCK_MAX)
 REGISTER_FILE_LEN = 256  # 8-bit register address
 DEFAULT_TEMP_C = 40.0  # same chip temperature as the pty device
-FACTORY_FPS_HZ = 100  # FPS_LOW/HIGH init 0x64 0x00, M05 p.34
+FACTORY_FPS_HZ = 100  # FPS_LOW/HIGH init 0x64 0x00, M05 p.35
 FACTORY_AMP_THR = 100  # AMP_THR init 0x64 0x00, M05 p.35
-FACTORY_MAX_DIST = 0x0320  # MAX_DIST init 0x20 0x03 (800), M05 p.35 (unit disputed, TFLUNA.md 8)
+FACTORY_MAX_DIST = 0x0320
+"""MAX_DIST init 0x20 0x03 (800), M05 p.35 (unit disputed, docs/tfluna.md §8)."""
 
 _SETTINGS = range(Register.ULTRA_LOW_POWER, Register.MAX_DIST_HIGH + 1)
 """Registers a save keeps and a reboot restores (the R/W configuration block)."""

@@ -29,7 +29,7 @@ it is scored on (chosen from :data:`Q_GRID_M2_S3` by the caller's score against 
 truth). It is an optimistic bound, not a competitor: a fair filter should come close to
 it, not beat it.
 
-Plain Python floats on the per-reading path, as everywhere in lunad (DESIGN.md).
+Plain Python floats on the per-reading path, as everywhere in lunad (docs/architecture.md).
 """
 
 from __future__ import annotations
@@ -39,12 +39,12 @@ from collections.abc import Callable, Sequence
 
 from lunad.sim.physics import AMP_AMBIENT, AMP_WEAK, DIST_MAX_CM
 
-RESOLUTION_M = 0.01  # output step of the default 9-byte/cm frame, DS p.2 (docs/tfluna.md s. 5)
+RESOLUTION_M = 0.01  # output step of the default 9-byte/cm frame, DS p.2 (docs/tfluna.md section 5)
 QUANT_VAR_M2 = RESOLUTION_M * RESOLUTION_M / 12.0
 """Variance of rounding to whole centimetres, m^2 (uniform error over one step)."""
 
 RANGE_MIN_M = 0.2  # blind zone, M05 p.10 (docs/tfluna.md section 4)
-RANGE_MAX_M = DIST_MAX_CM / 100.0  # default Dist_max 900 cm, M05 p.16 (docs/tfluna.md s. 4)
+RANGE_MAX_M = DIST_MAX_CM / 100.0  # default Dist_max 900 cm, M05 p.16 (docs/tfluna.md section 4)
 INIT_SPEED_SIGMA_M_S = 1.0
 """One-sigma speed uncertainty of a fresh track, m/s (our choice: a person walking or a
 robot driving; the first few readings pin it down)."""

@@ -31,7 +31,7 @@ fluctuation exp(tau xi) turns the paper's hard S < 0.05 cut into a detection
 probability, and its threshold grows with ambient light (zero in the dark, so that
 low light loses no readings, as section V says). docs/paper-model.md has the fit.
 
-This module never imports ``lunad.filters`` (DESIGN.md: truth must not share code with
+This module never imports ``lunad.filters`` (docs/architecture.md: truth must not share code with
 the estimator it judges).
 """
 

@@ -8,7 +8,7 @@ How this works: the paper (seed 000, section III, eqs 1-3) models one reading as
 
 and drops a reading when S < 0.05 or D_meas is outside [0.2, 8.0] m. The virtual
 sensor turns S into the ``amp`` field with ``amp = S * AMP_REF`` and applies the real
-sensor's rules (TFLUNA.md section 4): amp below the amp threshold (100 by default,
+sensor's rules (docs/tfluna.md section 4): amp below the amp threshold (100 by default,
 ID 0x22) reports no distance, distances are quantised to 1 cm. A model is told the
 threshold only so that it draws no noise for a reading the sensor will not report;
 ``VirtualSensor.data_frame`` puts the dummy distance on the wire.
@@ -21,7 +21,7 @@ field, for scenarios and ``lunad eval``:
     sigma = f (sigma0 + k L) / S                   paper eq. 2-3 structure, f = noise_scale
     D     = round_cm(d + N(0, sigma) [+ spike])    1 cm output steps (DS p.2)
 
-with the sensor's own rules (TFLUNA.md section 4): amp < 100 reports distance 0
+with the sensor's own rules (docs/tfluna.md section 4): amp < 100 reports distance 0
 (M05 p.16); amp that would exceed 65535 reads 65535, saturated (M05 p.14); a strong
 but unsaturated signal tops out at 30000 ("normally Amp should not be above 30000",
 M05 p.14); ambient light beyond the 70 klux immunity (DS p.2) reads amp > 32768
@@ -32,7 +32,7 @@ path to one reading. sigma0 and k are fitted to the datasheet repeatability tabl
 at L = 0 (M05 p.9 Table 2): see REALISTIC_SIGMA0_M.
 
 This module never imports ``lunad.filters``: the truth generator must not share code
-with the estimator it judges (DESIGN.md).
+with the estimator it judges (docs/architecture.md).
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ AMP_MAX = 0xFFFF  # 16-bit field; 65535 means overexposure (M05 p.14)
 PAPER_SIGMA0_M = 0.01  # eq. 2, sigma0, read in metres (docs/paper-model.md)
 PAPER_K_M_PER_LUX = 0.0001  # eq. 2, k, metres per lux
 
-REF_DISTANCE_M = 2.0  # distance at which amp = AMP_REF * R cos(theta) (calibration, DESIGN.md)
+REF_DISTANCE_M = 2.0  # where amp = AMP_REF * R cos(theta): S = 1 at 2 m (docs/filter.md)
 AMP_SIGNAL_MAX = 30000  # "normally Amp should not be above 30000", M05 p.14
 AMP_AMBIENT = 32768  # amp above this flags ambient overexposure, M05 p.14
 AMBIENT_IMMUNITY_LUX = 70_000.0  # ambient light immunity, DS p.2

@@ -7,7 +7,7 @@ draws readings from a law of a different shape, with its own constants and its o
 scale, so that ``lunad eval`` can ask whether lunad still holds up when its assumptions
 are wrong, as they will be on real hardware. It shares only the sensor's wire rules
 (validity thresholds, amp limits, Dist_max: docs/tfluna.md section 4) with the realistic
-profile, by importing them; it never imports ``lunad.filters`` (DESIGN.md).
+profile, by importing them; it never imports ``lunad.filters`` (docs/architecture.md).
 
 The law. A phase time-of-flight sensor counts photons; the phase error of a count is
 photon shot noise, whose one-sigma is the square root of everything counted (the

@@ -1,14 +1,14 @@
 """The TF-Luna's command behaviour, without I/O: settings in, reply bytes out.
 
 How this works: ``handle`` takes one host command (ID and payload) and returns the
-bytes the sensor would send back, with valid checksums (TFLUNA.md 2.2-2.3): an echo
+bytes the sensor would send back, with valid checksums (docs/tfluna.md section 2.2-2.3): an echo
 for settings, a status byte for reset/save/restore, a data frame for a trigger.
 Settings change at once and survive a soft reset only after a save (M05 p.13).
-Unknown IDs get no answer (the manual does not document one; TFLUNA.md 2.2).
+Unknown IDs get no answer (the manual does not document one; docs/tfluna.md section 2.2).
 
 Inbound checksums: the sensor accepts any checksum byte until the host turns checking
-on with ID 0x08 (TFLUNA.md 2.1, M05 p.13). After that a command with a wrong checksum
-is not carried out. What the sensor sends back for it is undocumented (TFLUNA.md 2.2
+on with ID 0x08 (docs/tfluna.md section 2.1, M05 p.13). After that a command with a wrong checksum
+is not carried out. What the sensor sends back for it is undocumented (docs/tfluna.md section 2.2
 notes and section 9), so, as for an unknown ID, the virtual sensor sends nothing.
 """
 
@@ -22,7 +22,7 @@ from lunad.protocol.commands import CommandId
 from lunad.protocol.frame import OutputFormat, checksum, encode_frame
 
 DEFAULT_RATE_HZ = 100  # M05 p.9
-FIRMWARE = (3, 0, 9)  # major, minor, revision: a real unit's version (TFLUNA.md 2.3)
+FIRMWARE = (3, 0, 9)  # major, minor, revision: a real unit's version (docs/tfluna.md section 2.3)
 SERIAL_NUMBER = b"LUNADSIM000001"  # 14 ASCII bytes like "U0900018010001"
 
 
@@ -131,7 +131,7 @@ class VirtualSensor:
 
         The one place the amp threshold applies (ID 0x22; default 100): below it, or
         with no distance measured (``dist_cm`` None), the frame carries the dummy
-        distance (M05 p.16, p.30; TFLUNA.md section 4). A threshold lowered below 100
+        distance (M05 p.16, p.30; docs/tfluna.md section 4). A threshold lowered below 100
         therefore reports distances for weaker signals, as the sensor does. Then the
         distance limits (clamp, or silence, M05 p.32) and the output format (cm or mm).
 

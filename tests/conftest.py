@@ -3,6 +3,7 @@ a real ZeroMQ subscriber, and a guard that fails any test leaving a pty or threa
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -10,12 +11,16 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
+import jsonschema
 import pytest
 from hypothesis import settings
 
+from lunad.protocol import client as client_module
+from lunad.protocol import messages as messages_module
 from lunad.protocol.client import Subscriber
 from lunad.protocol.messages import HealthMessage, Message, RangeMessage
 from lunad.sim.pty_device import DeviceError, PtyDevice
@@ -25,6 +30,35 @@ settings.load_profile("lunad")
 """No per-example deadline for hypothesis (200 ms by default): it is a timed assertion,
 and a loaded CI machine (a 10 min run) failed ``test_truth_stays_within_its_keyframes``
 on it. Speed is the benchmarks' business."""
+
+_SCHEMAS = {
+    kind: jsonschema.Draft202012Validator(
+        json.loads(
+            resources.files("lunad.protocol").joinpath("schema", f"{kind}.v2.json").read_text()
+        )
+    )
+    for kind in ("range", "health")
+}
+
+
+@pytest.fixture(autouse=True)
+def every_message_validates_against_the_shipped_schema(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Every message a test receives through ``Subscriber`` validates against the JSON
+    Schema shipped in the package (protocol/schema/), as a consumer in another language
+    would check it, besides the pydantic model (docs/messages.md)."""
+    decode = messages_module.decode
+
+    def checked(topic_frame: bytes, payload: bytes) -> Message:
+        msg = decode(topic_frame, payload)  # raises first on what the model refuses
+        _SCHEMAS[msg.kind].validate(json.loads(payload))
+        if not topic_frame.endswith(b"/"):
+            raise ValueError(f"topic {topic_frame!r} does not end in '/'")
+        return msg
+
+    monkeypatch.setattr(client_module, "decode", checked)
+
 
 LUNAD = [sys.executable, "-m", "lunad.daemon.cli"]
 STARTUP_S = 30.0

@@ -12,16 +12,19 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+import pytest
 import zmq
 
-from lunad.protocol.client import Subscriber
-from lunad.protocol.messages import RangeMessage, encode_range, topic
+from lunad.protocol.client import StaleStream, Subscriber
+from lunad.protocol.messages import RangeMessage, encode_range, range_ident, topic
+
+RUN = "00000000000000a1"
 
 
-def msg(seq: int, sensor: str = "c") -> bytes:
+def msg(seq: int, sensor: str = "c", run: str = RUN, frames: int = 1) -> bytes:
     return encode_range(
-        f'"{sensor}"'.encode(), seq, 1, 2, 1.0, 500, 30.0, 0.25, 1.0, 0.01, 10.0, "ok", b"[]",
-        "stable",
+        range_ident(sensor, run), seq, frames, 1, 2, 1.0, 500, 30.0, 0.25, 1.0, 0.01, 10.0,
+        "ok", b"[]", "stable",
     )  # fmt: skip
 
 
@@ -53,11 +56,11 @@ def publishing(ep: str, sensors: tuple[str, ...], hz: float = 200.0) -> Iterator
 
 
 def test_recv_returns_at_its_timeout_while_other_sensors_talk(tmp_path: Path) -> None:
-    """``front`` subscribes to the prefix ``range/front``, which ``front2``'s messages
-    share: skipping them must not restart the wait, or robot code blocks forever."""
+    """Only ``frontleft`` talks: ``range/front/`` matches none of its messages, and the
+    wait for ``front`` ends at its timeout, or robot code blocks forever."""
     ep = f"ipc://{tmp_path}/o.sock"
     returned: list[object] = []
-    with publishing(ep, ("front2",)), Subscriber(ep, sensor="front") as sub:
+    with publishing(ep, ("frontleft",)), Subscriber(ep, sensor="front") as sub:
         t = threading.Thread(target=lambda: returned.append(sub.recv(timeout_s=0.5)))
         t.start()
         t.join(timeout=10.0)
@@ -105,7 +108,7 @@ def test_watch_prints_its_summary_on_ctrl_c_and_keeps_its_duration(tmp_path: Pat
             w.kill()
         assert w.returncode == 0
         assert "readings, 0 lost (seq gaps)" in err
-    with publishing(ep, ("front2",)):
+    with publishing(ep, ("frontleft",)):
         only_front2 = _watch(ep, "--sensor", "front", "--duration", "1")
         try:
             _, err = only_front2.communicate(timeout=20)  # it waited forever before
@@ -123,7 +126,7 @@ def test_watch_says_what_to_check_when_nothing_comes(tmp_path: Path) -> None:
     assert err.count("nothing from ipc://") == 1 and "group lunad" in err
 
 
-def test_gaps_restarts_and_bad_messages(tmp_path: Path) -> None:
+def test_gaps_duplicates_folding_restarts_and_bad_messages(tmp_path: Path) -> None:
     ep = f"ipc://{tmp_path}/c.sock"
     ctx = zmq.Context()
     pub = ctx.socket(zmq.PUB)
@@ -138,21 +141,51 @@ def test_gaps_restarts_and_bad_messages(tmp_path: Path) -> None:
             assert isinstance(first, RangeMessage)
             while sub.recv(timeout_s=0.1) is not None:
                 pass
-            for seq in (1, 2, 5, 6):
-                pub.send_multipart([topic("range", "c"), msg(seq)])
-            pub.send_multipart([topic("range", "c"), b"{not json"])
-            pub.send_multipart([topic("range", "other"), msg(99)])
-            pub.send_multipart([topic("range", "c"), msg(0)])  # daemon restarted
-            pub.send_multipart([topic("range", "c"), msg(1)])
+            sends = [
+                (topic("range", "c"), msg(1)),
+                (topic("range", "c"), msg(2)),
+                (topic("range", "c"), msg(5)),  # 3 and 4 lost
+                (topic("range", "c"), msg(5)),  # the cache's copy: a duplicate
+                (topic("range", "c"), msg(9, frames=4)),  # 6-9 folded into one: no loss
+                (topic("range", "c"), b"{not json"),
+                (topic("range", "other"), msg(99, "other")),
+                (topic("range", "cc"), msg(99, "cc")),  # a longer name: never delivered
+                (topic("range", "c"), msg(0, run="00000000000000b2")),  # a restart
+                (topic("range", "c"), msg(1, run="00000000000000b2")),
+            ]
+            for frames in sends:
+                pub.send_multipart(list(frames))
             got = []
             while (m := sub.recv(timeout_s=0.3)) is not None:
-                got.append(m.seq)  # type: ignore[union-attr]
-            assert got == [1, 2, 5, 6, 0, 1]
+                assert isinstance(m, RangeMessage)
+                got.append((m.run[-2:], m.seq))
+            assert got == [("a1", 1), ("a1", 2), ("a1", 5), ("a1", 9), ("b2", 0), ("b2", 1)]
             assert sub.lost == 2
+            assert sub.duplicates == 1
             assert sub.bad_messages == 1
     finally:
         pub.close(linger=0)
         ctx.term()
+
+
+def test_a_silent_daemon_raises_stale_stream(tmp_path: Path) -> None:
+    """``for msg in sub`` once blocked for ever when the daemon died; with a limit it
+    raises, and ``alive`` says the same."""
+    ep = f"ipc://{tmp_path}/s.sock"
+    with Subscriber(ep, sensor="front", stale_after_s=0.3) as sub:
+        with publishing(ep, ("front",)):
+            it = iter(sub)
+            assert isinstance(next(it), RangeMessage)
+            assert sub.alive and sub.rate_hz > 0
+        t0 = time.monotonic()
+        with pytest.raises(StaleStream) as err:
+            while True:
+                next(it)
+        assert 0.2 < time.monotonic() - t0 < 5.0
+        assert err.value.silent_s >= 0.3
+        assert not sub.alive
+    with pytest.raises(ValueError):
+        Subscriber(ep, stale_after_s=0.0)
 
 
 def test_a_repeated_health_message_is_dropped(tmp_path: Path) -> None:
@@ -163,9 +196,10 @@ def test_a_repeated_health_message_is_dropped(tmp_path: Path) -> None:
     def health(t_unix_ns: int, sensor: str = "c") -> bytes:
         return encode_health(
             HealthMessage(
-                sensor=sensor, t_unix_ns=t_unix_ns, state="waiting", frames=0,
-                checksum_errors=0, bytes_discarded=0, fps=0.0, dropout_ratio=0.0,
-                dropped_sends=0, uptime_s=0.0, last_error=None, firmware=None,
+                sensor=sensor, run=RUN, t_unix_ns=t_unix_ns, t_mono_ns=1, state="waiting",
+                frames=0, checksum_errors=0, bytes_discarded=0, fps=0.0, frame_rate_hz=250.0,
+                dropout_ratio=0.0, dropped_sends=0, uptime_s=0.0, last_error=None,
+                firmware=None,
             )
         )  # fmt: skip
 

@@ -1,4 +1,4 @@
-"""Command frames: byte-exact encodings (TFLUNA.md 2.3) and encode/decode round trips
+"""Command frames: byte-exact encodings (docs/tfluna.md section 2.3) and encode/decode round trips
 through the virtual sensor and the parser, like h11's ConnectionPair."""
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ def test_byte_exact(encoded: bytes, expected: str) -> None:
 
 
 def test_status_reply_checksums_are_computed_not_copied() -> None:
-    """The manuals print 5A 05 02 00 60 etc.; arithmetic gives one more (TFLUNA.md 2.3)."""
+    """The manuals print 5A 05 02 00 60 etc.; arithmetic gives one more (docs/tfluna.md §2.3)."""
     assert commands.encode_reply(0x02, b"\x00") == bytes.fromhex("5A 05 02 00 61")
     assert commands.encode_reply(0x10, b"\x00") == bytes.fromhex("5A 05 10 00 6F")
     assert commands.encode_reply(0x11, b"\x00") == bytes.fromhex("5A 05 11 00 70")

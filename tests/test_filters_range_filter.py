@@ -92,7 +92,7 @@ def test_estimate_beyond_the_range_is_not_published() -> None:
     zs = [7.99 if z <= 8.0 else z for z in noisy(rng, 8.1, 1800, 200)]
     out = feed(flt, zs, 1800)
     assert all(e.range_m is None or e.range_m <= 8.0 for e in out)
-    assert out[-1].reasons == (Reason.OUT_OF_RANGE,)
+    assert out[-1].reasons == (Reason.TOO_FAR,)
 
 
 def test_high_lux_is_degraded_high_ambient() -> None:
@@ -293,3 +293,14 @@ def test_config_rejects_a_band_that_is_never_left(field: str, value: float) -> N
     never lets a reading back in."""
     with pytest.raises(ValueError, match=field):
         FilterConfig(**{field: value})
+
+
+def test_ok_only_outside_the_unreliable_zone() -> None:
+    """A target at S 0.06 (amp 120): sigma 6.7 cm, zone unreliable (S < 0.10): the
+    estimate is usable but not ``ok``; it says why."""
+    out = feed(RangeFilter(), noisy(random.Random(8), 3.0, 120, 300), 120)
+    last = out[-1]
+    assert last.zone is Zone.UNRELIABLE
+    assert last.status is Status.DEGRADED
+    assert Reason.UNRELIABLE_ZONE in last.reasons
+    assert all(e.status is not Status.OK or e.zone is not Zone.UNRELIABLE for e in out)

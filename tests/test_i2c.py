@@ -179,7 +179,7 @@ def test_wrong_address_is_an_open_error(fake: FakeSMBus):
 
 
 def test_one_nack_at_open_is_retried(fake: FakeSMBus, opener: Callable[..., I2CSource]):
-    fake.nack(1)  # e.g. a sensor waking from ultra-low power (TFLUNA.md 3.5)
+    fake.nack(1)  # e.g. a sensor waking from ultra-low power (docs/tfluna.md section 3.5)
     src = opener()
     assert src.nacks == 1 and fake.mode is Mode.TRIGGER
 
@@ -280,7 +280,7 @@ def test_sensor_restarting_by_itself_is_put_back_in_trigger_mode(
     opener: Callable[..., I2CSource],
 ):
     """A brown-out: the sensor NACKs while it boots and comes back in continuous mode (MODE
-    is never saved), where triggers are ignored and reads can be torn (TFLUNA.md 3.2-3.3).
+    is never saved), where triggers are ignored and reads can be torn (docs/tfluna.md §3.2-3.3).
     The source sets trigger mode before its next trigger and reads triggered samples."""
     now = [0.0]  # the fake's clock: it boots when the test says so
     dev = FakeSMBus(model=FixedModel(), clock=lambda: now[0])
@@ -415,7 +415,8 @@ def _health_notes_after(fake: FakeSMBus, tmp_path: Path, fault: Callable[[], Non
 
 
 def test_daemon_reports_retried_nacks_on_health(fake: FakeSMBus, tmp_path: Path) -> None:
-    """A NACK the source retries is counted and shown in health's last_error (DESIGN.md)."""
+    """A NACK the source retries is counted and shown in health's last_error
+    (docs/architecture.md, "What bad input gets")."""
     notes = _health_notes_after(fake, tmp_path, lambda: fake.nack(3))
     assert notes, "no health message reported the retried NACKs"
     assert notes[-1].startswith("i2c bus 1 address 0x10: recovered from 3 fault(s) since opening")

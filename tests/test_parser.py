@@ -41,7 +41,7 @@ def three_ways(data: bytes) -> list[list[tuple[int, int, int]]]:
 
 
 def test_known_frame_three_ways() -> None:
-    data = bytes.fromhex("59 59 7B 00 E8 03 40 09 61")  # TFLUNA.md 1.5
+    data = bytes.fromhex("59 59 7B 00 E8 03 40 09 61")  # docs/tfluna.md section 1.5
     for frames in three_ways(data):
         assert frames == [(123, 1000, 0x0940)]
     f = FrameParser().feed(data, 7)[0]

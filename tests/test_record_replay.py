@@ -31,7 +31,7 @@ def ranges_until_quiet(sub: Subscriber, quiet_s: float = 1.0) -> list[RangeMessa
 
 
 def comparable(msgs: list[RangeMessage]) -> list[dict[str, Any]]:
-    return [m.model_dump(exclude={"t_unix_ns"}) for m in msgs]
+    return [m.model_dump(exclude={"t_unix_ns", "run"}) for m in msgs]  # a run per daemon start
 
 
 @pytest.mark.parametrize("publish_hz", [None, "50"])
@@ -223,8 +223,9 @@ def test_simulated_i2c_bus_through_the_daemon(
 
 def test_replay_keeps_sending_health(start_daemon: Any, endpoint: str, tmp_path: Path) -> None:
     """A replay's chunks keep their recorded times, which mean nothing on this machine's
-    clock. The loop once timed its deadlines by them, and a replay at 1x sent health every
-    2 s or so instead of every second."""
+    clock: health comes every second while it plays (timed by the recorded times, it came
+    every 2 s or so), says ``waiting`` until the first subscriber, and a last ``stopped``
+    one counts every frame."""
     from lunad.daemon.record import Recorder
     from lunad.daemon.source import Chunk
     from lunad.protocol.frame import encode_frame
@@ -237,15 +238,21 @@ def test_replay_keeps_sending_health(start_daemon: Any, endpoint: str, tmp_path:
             r(Chunk(five, (k + 1) * 20_000_000))
     start_daemon("--replay", str(rec), "--publish", endpoint)
     while_playing = []
+    states = []
     with Subscriber(endpoint) as sub:
-        deadline = time.monotonic() + 15.0
-        while len(while_playing) < 3 and time.monotonic() < deadline:
+        deadline = time.monotonic() + 20.0
+        while time.monotonic() < deadline:
             msg = sub.recv(timeout_s=1.0)
-            if isinstance(msg, HealthMessage) and msg.state == "connected":
-                if msg.frames >= 1000:
-                    break  # the replay's end
-                while_playing.append(msg.frames)
+            if isinstance(msg, HealthMessage):
+                states.append(msg.state)
+                if msg.state == "connected" and msg.frames < 1000:
+                    while_playing.append(msg.frames)
+                if msg.state == "stopped":
+                    assert msg.frames == 1000, "the last health counts every frame replayed"
+                    break
     assert len(while_playing) >= 3, f"health while the 4 s replay played: {while_playing} frames"
+    assert states[0] == "waiting", "a replay waits for its first subscriber: waiting"
+    assert "reconnecting" not in states and states[-1] == "stopped", states
 
 
 def test_sighup_to_a_missing_recording_keeps_the_replay(

@@ -15,6 +15,7 @@ from lunad.protocol.client import Subscriber
 from lunad.protocol.messages import HealthMessage, RangeMessage
 from lunad.sim.physics import RealisticSensor, Truth
 from lunad.sim.pty_device import PtyDevice
+from lunad.sim.virtual_sensor import SERIAL_NUMBER
 
 
 def drain_ranges(sub: Subscriber, quiet_s: float = 0.5) -> list[RangeMessage]:
@@ -70,6 +71,10 @@ def test_contract_and_seq(running: Any, subscriber: Subscriber, helpers: Any) ->
     bad += [m for m in ranges if m.range_m is None or abs(m.range_m - 2.0) >= 0.2]
     assert not bad, bad[:3]
     assert health[-1].state == "connected" and health[-1].firmware == "3.0.9"
+    assert health[-1].serial == SERIAL_NUMBER.decode()
+    assert (health[-1].min_range_m, health[-1].max_range_m) == (0.2, 8.0)
+    assert health[-1].noise_model == "default" and health[-1].run == ranges[-1].run
+    assert all(m.frames == 1 and not m.cached for m in ranges)
     # a rate near the sensor's 250 Hz; a loaded machine reads a backlog in a burst, so
     # one health interval may see more (389 once in CI-like load): wide margins
     assert 50 < health[-1].fps < 750
@@ -257,13 +262,19 @@ def test_absent_device_then_appears(
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
-def test_signal_stops_cleanly(running: Any, sig: int) -> None:
+def test_signal_stops_cleanly(running: Any, subscriber: Subscriber, helpers: Any, sig: int) -> None:
+    """The daemon's last message says it stopped, with the final counts."""
     _, d = running(rate_hz=250)
+    helpers.wait_for(subscriber, helpers.is_range, timeout=30)
     t0 = time.monotonic()
     code = d.stop(sig, timeout=10)
     print(f"stopped {time.monotonic() - t0:.2f} s after the signal")  # about 0.1 s when idle
     assert code == 0
     assert "stopped:" in d.log and "Traceback" not in d.log
+    last = helpers.wait_for(
+        subscriber, lambda m: isinstance(m, HealthMessage) and m.state == "stopped", timeout=5
+    )
+    assert last.frames > 0
 
 
 def test_stop_while_reconnecting(

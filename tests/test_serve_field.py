@@ -15,6 +15,7 @@ import pytest
 import zmq
 
 from lunad.daemon.source import Chunk, Source
+from lunad.filters import FilterConfig
 from lunad.protocol.client import Subscriber
 from lunad.protocol.commands import CommandId, encode_reply
 from lunad.protocol.messages import HealthMessage, RangeMessage, decode
@@ -257,7 +258,7 @@ def test_a_reads_frames_are_spaced_by_the_rate_the_sensor_sends_at(
 
     d._step = recording_step  # type: ignore[method-assign]
     d.pub = Pub()  # type: ignore[assignment]
-    d.health = Health("t", 0)
+    d.health = Health("t", 0, "0000000000000000", FilterConfig())
     d._open_failures = 0
     d._try_open(time.monotonic_ns())  # the clock for this source, as a real open makes it
     d.health.state = State.CONNECTED

@@ -230,7 +230,7 @@ def with_bad_checksum(cmd: bytes) -> bytes:
 
 
 def test_checksum_checking_ignores_bad_commands(device: Callable[..., PtyDevice]) -> None:
-    """After ID 0x08 a wrong checksum is not obeyed, and gets no reply (TFLUNA.md 2.1, 9)."""
+    """After ID 0x08 a wrong checksum is not obeyed, and gets no reply (docs/tfluna.md §2.1, 9)."""
     dev = device(rate_hz=0)
     p = FrameParser()
     with serial.serial_for_url(dev.path, 115200, timeout=0.05, exclusive=True) as ser:
@@ -264,7 +264,7 @@ def test_amp_threshold_command_moves_the_weak_signal_cut(
     device: Callable[..., PtyDevice], model: PaperSensor | RealisticSensor
 ) -> None:
     """ID 0x22: amp below the threshold reports Dummy_Dist, at or above it a distance
-    (M05 p.30, TFLUNA.md section 4); lowered below 100 it used to change nothing."""
+    (M05 p.30, docs/tfluna.md section 4); lowered below 100 it used to change nothing."""
     dev = device(rate_hz=0, truth=Truth(2.0, 0.04, 0.0, 0.0), model=model)  # amp 80
     p = FrameParser()
     got: list[Frame] = []
