@@ -294,3 +294,28 @@ def test_publish_endpoint_in_use_exits_69(
     d2 = start_daemon("--device", str(tmp_path / "b"), "--publish", "tcp://127.0.0.1:47781")
     assert d2.proc.wait(timeout=10) == 69
     assert "cannot bind" in d2.log and "Traceback" not in d2.log
+
+
+def test_health_gives_the_range_gate_and_noise_model_in_force(
+    device: Callable[..., PtyDevice],
+    start_daemon: Any,
+    endpoint: str,
+    subscriber: Subscriber,
+    helpers: Any,
+    tmp_path: Path,
+) -> None:
+    """A ROS bridge takes min/max range from health: they are the config's, not the
+    datasheet's; a measured sigma0 makes the noise model 'configured'."""
+    dev = device(rate_hz=100, output_enabled=False)
+    cfg = tmp_path / "front.toml"
+    cfg.write_text(
+        "[filter]\nmin_range_m = 0.3\nmax_range_m = 6.0\nsigma0_m = 0.0045\n", encoding="utf-8"
+    )
+    start_daemon("--config", str(cfg), "--device", dev.path, "--publish", endpoint)
+    h = helpers.wait_for(
+        subscriber,
+        lambda m: isinstance(m, HealthMessage) and m.state == "connected",
+        timeout=helpers.startup_s,
+    )
+    assert (h.min_range_m, h.max_range_m) == (0.3, 6.0)
+    assert h.noise_model == "configured"
