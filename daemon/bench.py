@@ -456,7 +456,7 @@ def bench_message(frames: int = 5, gap_s: float = 0.02, messages: int = 200) -> 
     ``Daemon._read_folded`` does), the last encoded. Each pair of messages sleeps
     ``gap_s`` first: the first of the pair runs cold, the second right after it, warm.
     The two differ by what caches and branch predictors lost while asleep; on a shared
-    VM, several times the work itself (docs/performance.md, Session 7).
+    VM, several times the work itself (docs/performance.md, "Cold wake-ups").
     Returns (warm, cold)."""
     import time
 

@@ -16,8 +16,7 @@ Measure lunad on this machine and print the figures.
   bulk decode     numpy decode of a recorded stream (frames/s), checked frame for
                   frame against the streaming parser
   pipeline        parse + filter + encode of one frame, pure Python, no I/O (us);
-                  also the filter composed from its pieces (ReferenceFilter), and one
-                  --publish-hz message (its frames parsed and filtered, the last
+                  and one --publish-hz message (its frames parsed and filtered, the last
                   encoded) back to back and after a publish period asleep, as the
                   low-power loop runs it: what cold caches cost here
   serve           `lunad serve` at 250 Hz against the virtual sensor, and the same

@@ -249,7 +249,7 @@ class Recorder:
 
     The file is append-only. Opening an existing recording checks its header, truncates
     a torn last record (left by a power cut; logged) and appends after the last good
-    one; the header keeps the first session's version, description, creation time and
+    one; the header keeps the first recorder's version, description, creation time and
     frame rate. Records appended after a reboot restart the monotonic clock, so
     ``t_mono_ns`` may step back; ``paced`` treats that as no gap. The recorder holds an
     exclusive ``flock`` on the file until ``close``: a second writer is refused before
@@ -294,7 +294,7 @@ class Recorder:
         self._frame_rate_hz = frame_rate_hz
         self.fsync_interval_s = fsync_interval_s
         self.records = 0
-        """Records written by this Recorder (not counting earlier sessions)."""
+        """Records written by this Recorder (not counting what earlier recorders appended)."""
         self.bytes = 0
         """Data bytes written by this Recorder (record headers not counted)."""
         self.truncated_bytes = 0

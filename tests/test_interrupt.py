@@ -49,7 +49,7 @@ def test_ctrl_c_on_demo_is_an_interruption_not_lost_frames(short_tmp: Path) -> N
 
 
 def test_sigterm_stops_every_process_bench_started_and_removes_its_files(short_tmp: Path) -> None:
-    """SIGTERM (``systemctl stop``, a closed ssh session) ended ``lunad bench`` at once,
+    """SIGTERM (``systemctl stop``, a closed ssh connection) ended ``lunad bench`` at once,
     its ``finally`` blocks unrun: the ``lunad serve`` it was measuring, the receiver and
     the virtual sensor's folder outlived it, the daemon retrying its gone port for ever."""
     proc = _start([*LUNAD, "bench", "--quick"], short_tmp, "serve:")
