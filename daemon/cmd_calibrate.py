@@ -64,7 +64,9 @@ sigma0 the first run wrote. Until sigma0 is measured, lux_est rests on the datas
 Put the target square to the beam (or give --angle), fill the 2 degree beam with it
 (the spot is 3.5 cm wide per metre), and keep the scene still while it measures.
 Ctrl-C aborts: nothing is written. Exit 1: too few readings, or the figure --lux or
---fit-k asks for could not be measured (amp_ref is still reported and written).
+--fit-k asks for could not be measured (amp_ref is still reported and written). Exit
+69: the port is in use by another process, usually the daemon (`sudo systemctl stop
+lunad@NAME` first; the message names the holder).
 """
 
 EPILOG = """\
@@ -483,7 +485,14 @@ def run(args: argparse.Namespace) -> int:
     not a calibration.
     """
     from lunad.daemon.config import load_config
-    from lunad.daemon.errors import EX_CONFIG, ConfigError, SourceLostError, SourceOpenError
+    from lunad.daemon.errors import (
+        EX_CONFIG,
+        EX_UNAVAILABLE,
+        ConfigError,
+        SourceLostError,
+        SourceOpenError,
+    )
+    from lunad.daemon.serial_source import PortBusyError
     from lunad.daemon.source import open_source
     from lunad.protocol import Frame, FrameParser, commands
 
@@ -519,7 +528,7 @@ def run(args: argparse.Namespace) -> int:
         src = open_source(cfg.source)
     except SourceOpenError as exc:
         print(f"lunad calibrate: {exc}", file=sys.stderr)
-        return 1
+        return EX_UNAVAILABLE if isinstance(exc, PortBusyError) else 1
     parser = FrameParser()
     readings: list[tuple[float, int]] = []
     with src:

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
+import os
 import signal
 import sys
 import threading
@@ -25,10 +27,16 @@ Recording while the daemon runs: use `lunad serve --record FILE` instead (a port
 opens exclusively, so the two cannot share it). A file takes one writer at a time:
 one that another `lunad record` or `lunad serve --record` is writing is refused.
 
-Exit codes: 0 when stopped by SIGINT/SIGTERM or --duration; 78 for a bad option,
-config, or --out (not a recording, cannot be created, being recorded already); 74
-when the recording cannot be written any more (disk full, card removed), after one
-line saying why: every chunk recorded before it is kept.
+A sensor that is absent or unplugged is waited for, as the daemon does. A port that
+another process holds (usually the daemon: `sudo systemctl stop lunad@NAME` first) is
+not: one line names the port, its holder and how to stop it, and the --out file is
+removed if this run created it and recorded nothing into it.
+
+Exit codes: 0 when stopped by SIGINT/SIGTERM or --duration; 69 when the port is in
+use by another process; 78 for a bad option, config, or --out (not a recording,
+cannot be created, being recorded already); 74 when the recording cannot be written
+any more (disk full, card removed), after one line saying why: every chunk recorded
+before it is kept.
 """
 
 EPILOG = """\
@@ -65,12 +73,14 @@ def run(args: argparse.Namespace) -> int:
     from lunad.daemon.errors import (
         EX_CONFIG,
         EX_IOERR,
+        EX_UNAVAILABLE,
         ConfigError,
         LunadError,
         SourceLostError,
         SourceOpenError,
     )
     from lunad.daemon.record import Recorder
+    from lunad.daemon.serial_source import PortBusyError
     from lunad.daemon.source import Source, open_source
     from lunad.protocol import commands
 
@@ -92,6 +102,7 @@ def run(args: argparse.Namespace) -> int:
         signal.signal(sig, on_signal)
     deadline = None if args.duration is None else time.monotonic() + args.duration
     backoff = 0.1
+    created = not os.path.lexists(args.out)  # an empty file of ours is removed on a busy port
     try:
         rec = Recorder(
             args.out,
@@ -102,6 +113,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"lunad record: --out: {exc}", file=sys.stderr)
         return EX_CONFIG
     write_error: OSError | None = None
+    busy: PortBusyError | None = None
     startup = b""
     try:
         while not stop.is_set():
@@ -111,6 +123,9 @@ def run(args: argparse.Namespace) -> int:
             if src is None:
                 try:
                     src = open_source(cfg.source)
+                except PortBusyError as exc:  # its holder keeps it: waiting would record nothing
+                    busy = exc
+                    break
                 except SourceOpenError as exc:
                     log.warning("%s; retrying", exc)
                     stop.wait(min(backoff, left or backoff))
@@ -142,10 +157,17 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if src is not None:
             src.close()
+        if busy is not None and created and rec.records == 0:
+            with contextlib.suppress(OSError):  # unlinked while our lock still holds it
+                os.unlink(args.out)
         try:
             rec.close()
         except OSError as exc:  # the final fsync: the card went while recording
             write_error = write_error or exc
+    if busy is not None:
+        kept = f" ({rec.records} chunks kept in {args.out})" if rec.records else ""
+        print(f"lunad record: {busy}{kept}", file=sys.stderr)
+        return EX_UNAVAILABLE
     if write_error is not None:
         print(
             f"lunad record: writing {args.out} failed: {write_error} ({rec.records} chunks kept)",

@@ -56,14 +56,18 @@ class Notifier:
 
     @classmethod
     def from_env(cls, environ: Mapping[str, str] = os.environ) -> Notifier:
-        """A Notifier for what systemd exported; disabled (one info line) outside systemd.
+        """A Notifier for what systemd exported; disabled outside systemd.
+
+        Outside systemd (``NOTIFY_SOCKET`` unset, every run by hand) that is expected, so
+        it is one debug line; a ``NOTIFY_SOCKET`` that is set but unusable is a warning,
+        since then systemd waits for a READY=1 that never comes.
 
         ``WATCHDOG_USEC`` is honoured only when ``WATCHDOG_PID`` is unset or names this
         process: a child that inherited the variables must not ping for its parent.
         """
         address = environ.get("NOTIFY_SOCKET") or None
         if address is None:
-            log.info("NOTIFY_SOCKET is not set: not running under systemd, notifications off")
+            log.debug("NOTIFY_SOCKET is not set: not running under systemd, notifications off")
             return cls(None)
         if not address.startswith(("/", "@")):
             log.warning("NOTIFY_SOCKET=%r is not a path or @abstract name: ignored", address)

@@ -5,14 +5,24 @@ Opened with ``serial.serial_for_url(..., exclusive=True)``: a path, ``loop://``,
 no extra code, and a second process cannot steal bytes from an open port. pyserial
 reports a pulled USB adapter as ``SerialException`` on a read after ``poll`` said
 ready (serialposix.py); that, and any OSError, is ``SourceLostError`` here.
+
+Opening says why it failed in terms of what to do: a port another process holds is a
+``PortBusyError`` naming that process and how to stop it (found in ``/proc/locks``,
+where pyserial's ``flock`` shows, readable without root); a missing Raspberry Pi UART
+(``/dev/serial0``, ``/dev/ttyAMA*``, ``/dev/ttyS0``) gets the hint to enable it, as
+docs/raspberry-pi.md section 2 describes.
 """
 
 from __future__ import annotations
 
+import errno
 import os
+import re
 import select
 import termios
 from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import serial
@@ -25,9 +35,167 @@ VMIN_MAX = 255  # termios VMIN is one byte (termios(3))
 if TYPE_CHECKING:
     from lunad.daemon.config import SourceSection
 
+BUSY_ERRNOS = frozenset({errno.EAGAIN, errno.EWOULDBLOCK, errno.EBUSY})
+"""Errnos of a port someone else holds: pyserial's ``flock(LOCK_EX | LOCK_NB)`` on an
+exclusively opened port fails with EWOULDBLOCK (serialposix.py), and ``open`` of a tty
+another program put in TIOCEXCL mode with EBUSY (tty_ioctl(4))."""
+
+PI_UART = re.compile(r"/dev/(serial0|ttyAMA\d+|ttyS0)")
+"""Device paths of a Raspberry Pi's own UARTs: absent until the UART is enabled
+(docs/raspberry-pi.md, "Which port is /dev/serial0?")."""
+
+PI_UART_HINT = (
+    "UART not enabled? on a Raspberry Pi: raspi-config, Interface Options, Serial Port:"
+    " login shell no, hardware yes (sets enable_uart=1; on a Pi 5 dtparam=uart0=on),"
+    " then reboot"
+)
+"""What docs/raspberry-pi.md section 2 does, in one line; the console must be off too,
+or a login shell shares the port with the sensor."""
+PI5_SERIAL0_HINT = "on a Pi 5 /dev/serial0 is the debug connector: use /dev/ttyAMA0"
+
+STOP_THE_DAEMON = "sudo systemctl stop lunad@NAME"
+"""The usual holder of a sensor's port is its daemon; NAME is its config's name."""
+
+COMMAND_SHOWN_CHARS = 80
+"""A holder's command line is cut to this many characters to keep the error one line."""
+
+
+class PortBusyError(SourceOpenError):
+    """The port is held by another process, named in the message with how to stop it.
+
+    A ``SourceOpenError``, so the daemon retries it like an absent port (the holder may
+    let go); commands that cannot wait for that (``record``, ``calibrate``) catch it
+    first and stop with a non-zero exit.
+
+    Attributes:
+        device: the port as configured.
+        holder: the process that holds it, when ``/proc/locks`` shows it.
+    """
+
+    def __init__(self, device: str, holder: PortHolder | None) -> None:
+        self.device = device
+        self.holder = holder
+        if holder is None:
+            who = "another process"
+            fix = f"`sudo fuser -v {device}` names it; if it is lunad: {STOP_THE_DAEMON}"
+        elif holder.unit is not None:
+            who = f"{holder.unit} (pid {holder.pid})"
+            systemctl = "systemctl --user" if holder.user_unit else "sudo systemctl"
+            fix = f"stop it first: {systemctl} stop {holder.unit.removesuffix('.service')}"
+        else:
+            who = f"pid {holder.pid} ({holder.command})" if holder.command else f"pid {holder.pid}"
+            fix = "stop that process first"
+        super().__init__(f"cannot open {device}: the port is in use by {who}; {fix}")
+
+
+@dataclass(frozen=True, slots=True)
+class PortHolder:
+    """A process holding a port's lock.
+
+    Attributes:
+        pid: its process id, as this process's pid namespace sees it.
+        unit: the systemd service it runs in (``lunad@front.service``), or None.
+        user_unit: True when ``unit`` belongs to a user's service manager.
+        command: its command line, cut to ``COMMAND_SHOWN_CHARS``; empty if unreadable.
+    """
+
+    pid: int
+    unit: str | None
+    user_unit: bool
+    command: str
+
+
+def port_holder(device: str, proc: Path = Path("/proc")) -> PortHolder | None:
+    """The process holding a lock on ``device``, from ``/proc/locks``; None when unknown.
+
+    ``/proc/locks`` lists each lock with its owner's pid and the locked file as
+    ``MAJOR:MINOR:INODE`` (hex, hex, decimal: the filesystem's device and the inode),
+    and needs no privilege, unlike reading other users' ``/proc/PID/fd``. A lock whose
+    owner lives in another pid namespace shows pid 0 and gives None.
+
+    Args:
+        device: a path (a URL such as ``socket://`` has no lock and gives None).
+        proc: the proc filesystem's root; tests pass a directory laid out like it.
+    """
+    try:
+        st = os.stat(device)
+        locks = (proc / "locks").read_text()
+    except (OSError, ValueError):
+        return None
+    wanted = (os.major(st.st_dev), os.minor(st.st_dev), st.st_ino)
+    for line in locks.splitlines():
+        fields = line.split()
+        if len(fields) < 6 or fields[1] == "->":  # "->": a waiter, not the holder
+            continue
+        try:
+            major, minor, inode = fields[5].split(":")
+            pid = int(fields[4])
+            if (int(major, 16), int(minor, 16), int(inode)) != wanted or pid <= 0:
+                continue
+        except ValueError:
+            continue
+        unit, user_unit = _service_of(proc / str(pid) / "cgroup")
+        return PortHolder(pid, unit, user_unit, _command_of(proc / str(pid) / "cmdline"))
+    return None
+
+
+def _service_of(cgroup_file: Path) -> tuple[str | None, bool]:
+    """The systemd service whose own cgroup a process is in, and whether it is a user
+    one: the last component of its unified (``0::``) or ``name=systemd`` cgroup path,
+    when that ends in ``.service``. A process in a terminal sits in a ``.scope``."""
+    try:
+        text = cgroup_file.read_text()
+    except OSError:
+        return None, False
+    for line in text.splitlines():
+        parts = line.split(":", 2)  # HIERARCHY:CONTROLLERS:PATH (cgroups(7))
+        if len(parts) == 3 and parts[1] in ("", "name=systemd"):
+            path = parts[2]
+            unit = path.rstrip("/").rpartition("/")[2]
+            if unit.endswith(".service"):
+                return unit, "/user@" in path
+    return None, False
+
+
+def _command_of(cmdline_file: Path) -> str:
+    """A process's command line, the interpreter's path shortened to its name."""
+    try:
+        argv = [a.decode(errors="replace") for a in cmdline_file.read_bytes().split(b"\0") if a]
+    except OSError:
+        return ""
+    if argv:
+        argv[0] = os.path.basename(argv[0])
+    text = " ".join(" ".join(argv).split())  # one line, whatever the arguments hold
+    return text if len(text) <= COMMAND_SHOWN_CHARS else text[: COMMAND_SHOWN_CHARS - 1] + "…"
+
+
+def _open_problem(device: str, exc: OSError) -> str:
+    """Why ``device`` did not open, for the log and health, with a likely cause.
+
+    pyserial words an OS error as ``[Errno 2] could not open port X: [Errno 2] No such
+    file or directory: 'X'``; the errno's own text says the same once.
+    """
+    why = os.strerror(exc.errno) if exc.errno else str(exc)
+    if exc.errno == errno.ENOENT and PI_UART.fullmatch(device):
+        hints = [PI_UART_HINT, "docs/raspberry-pi.md"]
+        if device == "/dev/serial0":
+            hints.insert(1, PI5_SERIAL0_HINT)
+        return f"{why} ({'; '.join(hints)})"
+    return why
+
 
 class SerialSource(Source):
-    """A TF-Luna on a serial port (8N1, M05 p.12)."""
+    """A TF-Luna on a serial port (8N1, M05 p.12).
+
+    Args:
+        device: a path or a pyserial URL.
+        baud: the line's speed, Bd.
+
+    Raises:
+        PortBusyError: another process holds the port.
+        SourceOpenError: it cannot be opened for another reason (absent, no permission,
+            a bad URL); the message carries a hint where one is likely.
+    """
 
     def __init__(self, device: str, baud: int = 115200) -> None:
         self.device = device
@@ -36,7 +204,11 @@ class SerialSource(Source):
             self._ser = serial.serial_for_url(
                 device, baudrate=baud, timeout=0.5, exclusive=True, do_not_open=False
             )
-        except (serial.SerialException, OSError, ValueError) as exc:
+        except (serial.SerialException, OSError) as exc:  # SerialException is an OSError
+            if exc.errno in BUSY_ERRNOS:
+                raise PortBusyError(device, port_holder(device)) from exc
+            raise SourceOpenError(f"cannot open {device}: {_open_problem(device, exc)}") from exc
+        except ValueError as exc:
             raise SourceOpenError(f"cannot open {device}: {exc}") from exc
         ser = self._ser
         self._vmin = 0  # VMIN set by ``batch``; pyserial opens with 0

@@ -83,15 +83,28 @@ def test_reloading_carries_monotonic_usec(path_socket: tuple[str, socket.socket]
 
 
 def test_no_variable_means_disabled_and_silent(caplog: pytest.LogCaptureFixture) -> None:
-    caplog.set_level(logging.INFO, logger="lunad.daemon.notify")
+    """A run by hand (no NOTIFY_SOCKET) is the usual case, not news: one debug line,
+    nothing at info or above."""
+    caplog.set_level(logging.DEBUG, logger="lunad.daemon.notify")
     n = Notifier.from_env({})
     assert not n.enabled
     assert n.watchdog_interval_s is None
     assert not n.ready()
     assert not n.watchdog()
     assert n.errors == 0
-    assert len(caplog.records) == 1
+    assert [r.levelno for r in caplog.records] == [logging.DEBUG]
+    assert "NOTIFY_SOCKET is not set" in caplog.records[0].getMessage()
     n.close()
+
+
+def test_a_set_but_unusable_variable_is_a_warning(caplog: pytest.LogCaptureFixture) -> None:
+    """Under systemd with a NOTIFY_SOCKET we cannot use, systemd waits for READY=1 in
+    vain: that deserves a warning."""
+    caplog.set_level(logging.DEBUG, logger="lunad.daemon.notify")
+    with Notifier.from_env({"NOTIFY_SOCKET": "vsock:2:1234"}) as n:
+        assert not n.enabled
+    assert [r.levelno for r in caplog.records] == [logging.WARNING]
+    assert "vsock:2:1234" in caplog.records[0].getMessage()
 
 
 def test_watchdog_interval_is_half_of_watchdog_usec(path_socket: tuple[str, socket.socket]) -> None:

@@ -274,13 +274,13 @@ def test_recorder_restarts_a_torn_header(tmp_path: Path, keep: int) -> None:
 
 def test_append_keeps_earlier_records_and_header(tmp_path: Path) -> None:
     path = tmp_path / "app.lunarec"
-    record(path, CHUNKS[:2], "first session")
-    with Recorder(path, "second session") as rec:
+    record(path, CHUNKS[:2], "first recording")
+    with Recorder(path, "second recording") as rec:
         rec(CHUNKS[2])
         assert rec.records == 1
         assert rec.truncated_bytes == 0
     with Replay(path) as rep:
-        assert rep.header.source_desc == "first session"
+        assert rep.header.source_desc == "first recording"
         assert list(rep) == CHUNKS
 
 
