@@ -58,7 +58,18 @@ def add_parser(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Validate the config, bind, and serve until SIGTERM/SIGINT."""
+    """Validate the config, bind, and serve until SIGTERM/SIGINT.
+
+    Signals that come while it starts are noted by ``StartupSignals`` (installed by
+    ``lunad.daemon.cli.main`` before anything slow) and acted on once the daemon's own
+    handlers are in place: a SIGTERM or SIGINT stops it (exit 0), a SIGHUP that came
+    while the config was being read has it read again.
+    """
+    from lunad.daemon.cli import StartupSignals
+
+    startup: StartupSignals = getattr(args, "startup_signals", None) or StartupSignals()
+    reloads_before_reading = startup.reloads
+
     from lunad.daemon.config import load_config
     from lunad.daemon.errors import EX_CONFIG, EX_UNAVAILABLE, ConfigError, PublishError
 
@@ -86,6 +97,9 @@ def run(args: argparse.Namespace) -> int:
     from lunad.daemon.serve import Daemon
 
     setup_logging(cfg.log_level)
+    if startup.stop is not None:
+        _stopped_while_starting(startup.stop)
+        return 0
     daemon = Daemon(cfg, args.config, overrides)
     try:
         daemon.open_recorder()
@@ -93,6 +107,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"lunad serve: {exc}", file=sys.stderr)
         return EX_CONFIG
     daemon.install_signal_handlers()
+    # From here the daemon's handlers take every signal; what came before is in startup.
+    if startup.stop is not None:
+        daemon.request_stop(startup.stop)
+    elif startup.reloads > reloads_before_reading:
+        daemon.request_reload()
     try:
         publisher = Publisher(cfg.publish.endpoint, cfg.publish.sndhwm)
     except PublishError as exc:
@@ -101,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
         return EX_UNAVAILABLE
     # Start-up's ~30k objects (modules, pydantic schemas, the config) stay for the life
     # of the process: frozen, no collection walks them again, the one at exit included,
-    # which made stopping 3-4x quicker (docs/performance.md, Session 7).
+    # which made stopping 3-4x quicker (docs/performance.md, "Stopping").
     gc.freeze()
     try:
         return daemon.run(publisher)
@@ -109,3 +128,13 @@ def run(args: argparse.Namespace) -> int:
         publisher.close()
         if daemon.pub is not None and daemon.pub is not publisher:
             daemon.pub.close()  # a SIGHUP's new endpoint
+
+
+def _stopped_while_starting(signum: int) -> None:
+    """Log a stop that came before anything was opened or bound."""
+    import logging
+    import signal
+
+    logging.getLogger("lunad.serve").info(
+        "received %s while starting, stopping before serving", signal.Signals(signum).name
+    )

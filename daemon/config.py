@@ -9,9 +9,11 @@ every key commented is ``systemd/lunad.toml.example``.
 from __future__ import annotations
 
 import dataclasses
+import ipaddress
 import math
 import os
 import re
+import stat
 import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal, get_args, get_origin
@@ -32,8 +34,31 @@ from lunad.protocol.commands import BAUD_RATES, FRAME_RATES_HZ
 
 DEFAULT_ENDPOINT = "tcp://127.0.0.1:7781"
 DEFAULT_DEVICE = "/dev/serial0"
-_ENDPOINT_RE = re.compile(r"^(tcp://[^\s]+:(\d+|\*)|ipc://[^\s]+|inproc://[^\s]+)$")
 PORT_MAX = 65535  # TCP ports are 16 bits; libzmq takes a larger number modulo 2**16
+_TCP_RE = re.compile(r"tcp://(?P<host>\[[^\]\s]*\]|[^\s\[\]]+):(?P<port>[^\s:\]]*)")
+_TCP_HOST_RE = re.compile(r"\*|[A-Za-z0-9_.-]+")
+"""A TCP host to bind: ``*`` (every interface), an IPv4 address, an interface or host
+name. An IPv6 address is written in brackets and checked by ``ipaddress``."""
+_IPC_RE = re.compile(r"ipc://\S+")
+ENDPOINT_FORMS = "tcp://HOST:PORT, tcp://[IPV6]:PORT or ipc:///PATH"
+
+MAX_CONFIG_BYTES = 1 << 20
+"""Longest config file read, bytes (1 MiB). The example with every key and its comment
+is about 5 kB; a larger file is not a config, and an endless one (``/dev/zero``) would
+grow memory without bound while it was read."""
+
+HEALTH_INTERVAL_MIN_S = 0.05
+"""Shortest ``health_interval_s``: 20 messages a second, more than any monitor reads.
+Each health message is a wake-up, an encode and a send of the loop that also reads the
+sensor: at 1e-9 s it sends some 21,000 a second and reads no frames at all."""
+HEALTH_INTERVAL_MAX_S = 60.0  # the contract says "about once a second"; a minute at most
+PUBLISH_HZ_MIN = 0.01
+"""Lowest ``publish_hz``: one message per 100 s. A lower rate has no use (a reading that
+old is stale), and the period 1/rate overflows the loop's nanosecond arithmetic at 1e-300."""
+PUBLISH_HZ_MAX = 250.0  # the sensor's fastest frame rate: faster would fold nothing
+MAX_SHOWN_CHARS = 80
+"""A wrong value is quoted in an error up to this many characters: the line stays one
+line whatever a file holds (a 1 MiB string, an integer of 5000 digits)."""
 
 FLAGS: dict[str, str] = {
     "sensor.name": "--name",
@@ -164,19 +189,91 @@ class PublishSection(_Section):
     """[publish]: the ZeroMQ PUB socket."""
 
     endpoint: str = DEFAULT_ENDPOINT
-    health_interval_s: Annotated[float, Field(gt=0, le=60)] = 1.0
+    health_interval_s: float = 1.0
     sndhwm: Annotated[int, Field(ge=1, le=1_000_000)] = 1000
-    publish_hz: Annotated[float, Field(ge=0.01, le=250)] | None = None
+    publish_hz: float | None = None
 
     @field_validator("endpoint")
     @classmethod
     def _endpoint(cls, v: str) -> str:
-        if not _ENDPOINT_RE.match(v):
-            raise ValueError("must look like tcp://HOST:PORT or ipc:///PATH")
-        problem = tcp_port_problem(v)
+        problem = endpoint_problem(v)
         if problem is not None:
             raise ValueError(problem)
         return v
+
+    @field_validator("health_interval_s")
+    @classmethod
+    def _health_interval(cls, v: float) -> float:
+        if not HEALTH_INTERVAL_MIN_S <= v <= HEALTH_INTERVAL_MAX_S:  # NaN fails too
+            raise ValueError(
+                f"must be {HEALTH_INTERVAL_MIN_S:g}..{HEALTH_INTERVAL_MAX_S:g} s: every health "
+                "message wakes the loop that reads the sensor, and more often than "
+                f"{1 / HEALTH_INTERVAL_MIN_S:g} a second it would send health instead of readings"
+            )
+        return v
+
+    @field_validator("publish_hz")
+    @classmethod
+    def _publish_hz(cls, v: float | None) -> float | None:
+        if v is not None and not PUBLISH_HZ_MIN <= v <= PUBLISH_HZ_MAX:  # NaN fails too
+            raise ValueError(
+                f"must be {PUBLISH_HZ_MIN:g}..{PUBLISH_HZ_MAX:g} messages a second: above "
+                f"{PUBLISH_HZ_MAX:g} is faster than the sensor's fastest frame rate, below "
+                f"{PUBLISH_HZ_MIN:g} a message is over {1 / PUBLISH_HZ_MIN:g} s apart"
+            )
+        return v
+
+
+def endpoint_problem(endpoint: str) -> str | None:
+    """What is wrong with ``endpoint`` as an address for the daemon to bind, or None.
+
+    Taken: ``tcp://HOST:PORT`` with HOST ``*``, an IPv4 address, an interface or host
+    name, or an IPv6 address in brackets (``tcp://[::1]:7781``, ``tcp://[::]:7781``),
+    and ``ipc://PATH``. Refused, although libzmq would bind them: a wildcard port
+    (``tcp://HOST:*``) binds a port the kernel picks, which no subscriber can know;
+    ``inproc://`` reaches only sockets inside the daemon's own process.
+    """
+    if endpoint.startswith("inproc://"):
+        return (
+            "inproc:// reaches only sockets inside the daemon's own process, so no "
+            f"subscriber could connect; use {ENDPOINT_FORMS}"
+        )
+    if endpoint.startswith("ipc://"):
+        return None if _IPC_RE.fullmatch(endpoint) else f"must look like {ENDPOINT_FORMS}"
+    m = _TCP_RE.fullmatch(endpoint)
+    if m is None:
+        return f"must look like {ENDPOINT_FORMS}"
+    host, port = m["host"], m["port"]
+    if port == "*":
+        return (
+            "the TCP port is a wildcard (*): the kernel would pick one, which no subscriber "
+            f"can know; give a port 1..{PORT_MAX}"
+        )
+    if not port.isdigit():
+        return f"must look like {ENDPOINT_FORMS}"
+    if host.startswith("["):
+        try:
+            ipaddress.IPv6Address(host[1:-1])
+        except ValueError:
+            return f"{host} is not an IPv6 address; brackets hold one, as in tcp://[::1]:7781"
+    elif ":" in host:
+        return f"an IPv6 address goes in brackets, as in tcp://[::1]:7781; got {host}"
+    elif not _TCP_HOST_RE.fullmatch(host):
+        return f"must look like {ENDPOINT_FORMS}"
+    return tcp_port_problem(endpoint)
+
+
+def is_ipv6_endpoint(endpoint: str) -> bool:
+    """True for ``tcp://[IPV6]:PORT``: its socket needs ``zmq.IPV6`` set to bind or
+    connect (libzmq refuses an IPv6 address with "No such device" otherwise)."""
+    m = _TCP_RE.fullmatch(endpoint)
+    if m is None or not m["host"].startswith("["):
+        return False
+    try:
+        ipaddress.IPv6Address(m["host"][1:-1])
+    except ValueError:
+        return False
+    return True
 
 
 def tcp_port_problem(endpoint: str) -> str | None:
@@ -214,10 +311,10 @@ class FilterSection(_Section):
             else:
                 ok = isinstance(value, (int, float)) and not isinstance(value, bool)
                 if ok and not _finite(value):
-                    raise ValueError(f"filter.{key}: must be a finite number, got {value!r}")
+                    raise ValueError(f"filter.{key}: must be a finite number, got {_shown(value)}")
             if not ok:
                 kind = _KINDS.get(type(default), f"a {type(default).__name__}")
-                raise ValueError(f"filter.{key}: must be {kind}, got {value!r}")
+                raise ValueError(f"filter.{key}: must be {kind}, got {_shown(value)}")
             values[key] = type(default)(value)
         try:
             return FilterConfig(**values)
@@ -250,14 +347,7 @@ def load_config(path: Path | str | None, overrides: dict[str, Any] | None = None
     origin = "defaults"
     if path is not None:
         origin = str(path)
-        try:
-            data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise ConfigError(f"config file {path} does not exist") from None
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ConfigError(f"config file {path} cannot be read: {exc}") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(f"config file {path} is not valid TOML: {exc}") from None
+        data = _parse_toml(_read_config_text(path), path)
     for dotted, value in (overrides or {}).items():
         if value is None:
             continue
@@ -282,8 +372,125 @@ def load_config(path: Path | str | None, overrides: dict[str, Any] | None = None
         raise ConfigError(_describe(exc, origin)) from None
     except ValueError as exc:
         raise ConfigError(f"{origin}: {exc}") from None
+    except RecursionError:  # a value nested past the interpreter's limit, anywhere
+        raise ConfigError(f"invalid configuration ({origin}): a value nests too deeply") from None
     rate = cfg.sensor.frame_rate_hz
     return cfg.model_copy(update={"source": cfg.source.model_copy(update={"rate_hz": rate})})
+
+
+def _read_config_text(path: Path | str) -> str:
+    """The text of the config file ``path``, read only if it is a regular file of at
+    most ``MAX_CONFIG_BYTES``.
+
+    A FIFO would block the daemon's start without a word, and a device such as
+    ``/dev/zero`` would be read without end. The type is checked before opening, so
+    that no device is opened at all (a tty's open can toggle its modem lines), and
+    again on the open file, opened non-blocking, in case the path was replaced in
+    between; the read stops one byte past the cap whatever the file's size says (a
+    file in /proc says 0).
+
+    Raises:
+        ConfigError: missing, not a regular file, too large, unreadable or not UTF-8;
+            the message names the file and ``--config``.
+    """
+    where = f"config file {path} (--config)"
+    try:
+        kind = _file_kind(os.stat(path).st_mode)
+        if kind is not None:
+            raise ConfigError(f"{where} is {kind}, not a regular file")
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
+        try:
+            kind = _file_kind(os.fstat(fd).st_mode)
+            if kind is not None:
+                raise ConfigError(f"{where} is {kind}, not a regular file")
+            raw = _read_at_most(fd, MAX_CONFIG_BYTES + 1)
+        finally:
+            os.close(fd)
+    except FileNotFoundError:
+        raise ConfigError(f"config file {path} does not exist") from None
+    except OSError as exc:
+        raise ConfigError(f"{where} cannot be read: {exc}") from None
+    if len(raw) > MAX_CONFIG_BYTES:
+        raise ConfigError(
+            f"{where} is larger than {MAX_CONFIG_BYTES // 1024} KiB; a config is a few kB"
+        )
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{where} cannot be read: {exc}") from None
+
+
+_FILE_KINDS = (
+    (stat.S_ISDIR, "a directory"),
+    (stat.S_ISFIFO, "a FIFO"),
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+    (stat.S_ISSOCK, "a socket"),
+)
+
+
+def _file_kind(mode: int) -> str | None:
+    """None for a regular file, else what it is ("a FIFO"), for the error."""
+    if stat.S_ISREG(mode):
+        return None
+    return next((name for test, name in _FILE_KINDS if test(mode)), "not a file")
+
+
+def _read_at_most(fd: int, limit: int) -> bytes:
+    """Up to ``limit`` bytes from ``fd``, fewer at end of file."""
+    parts: list[bytes] = []
+    left = limit
+    while left > 0:
+        part = os.read(fd, min(left, 1 << 16))
+        if not part:
+            break
+        parts.append(part)
+        left -= len(part)
+    return b"".join(parts)
+
+
+def _parse_toml(text: str, path: Path | str) -> dict[str, Any]:
+    """``text`` parsed as TOML.
+
+    Every failure of the parser is the file's fault and becomes a ``ConfigError``: a
+    traceback exits 1, and systemd would restart the daemon into the same crash (78
+    stops it). Besides ``TOMLDecodeError``, tomllib raises ``RecursionError`` on arrays
+    or inline tables nested a few hundred deep (its parser recurses), and ``ValueError``
+    on an integer of more than 4300 digits (Python's limit on converting them).
+
+    Raises:
+        ConfigError: naming the file and ``--config``.
+    """
+    where = f"config file {path} (--config)"
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{where} is not valid TOML: {exc}") from None
+    except RecursionError:
+        raise ConfigError(
+            f"{where} is not usable TOML: arrays or tables nested too deeply"
+        ) from None
+    except Exception as exc:  # any parser failure is the file's (see above)
+        why = str(exc).partition("; use sys.set_int_max_str_digits")[0]  # not the user's knob
+        raise ConfigError(f"{where} is not usable TOML: {why}") from None
+
+
+def _shown(value: object) -> str:
+    """``repr(value)`` cut to ``MAX_SHOWN_CHARS``, for an error message.
+
+    An integer too long to print (over 4300 digits) is shown by its size: its repr
+    raises ``ValueError``, which would replace the message being written.
+    """
+    try:
+        text = repr(value)
+    except ValueError:  # only an int's repr raises it
+        size = f" of {len(hex(value)) - 2} hex digits" if isinstance(value, int) else ""
+        return f"an integer{size}, too long to show"
+    except RecursionError:
+        return f"a {type(value).__name__} nested too deeply to show"
+    if len(text) > MAX_SHOWN_CHARS:
+        text = f"{text[: MAX_SHOWN_CHARS - 5]}... ({len(text)} characters)"
+    return text
 
 
 def _finite(value: float) -> bool:
@@ -315,6 +522,6 @@ def _describe(exc: ValidationError, origin: str) -> str:
             msg = "unknown key"
         got = err.get("input")
         quiet = err["type"] in ("extra_forbidden", "missing") or isinstance(got, dict)
-        suffix = "" if quiet else f"; got {got!r}"
+        suffix = "" if quiet else f"; got {_shown(got)}"
         lines.append(f"{where}: {msg}{suffix}")
     return f"invalid configuration ({origin}): " + "; ".join(lines)

@@ -26,6 +26,7 @@ import io
 import logging
 import math
 import os
+import stat
 import struct
 import threading
 import time
@@ -142,6 +143,52 @@ def _read_header(f: _ReadableFile, path: Path) -> RecordingHeader:
     rate = _RATE.unpack(body[:extra])[0] if extra else 0
     desc = body[extra:].decode(errors="replace")
     return RecordingHeader(version, unix_ns, mono_ns, desc, rate)
+
+
+_FILE_KINDS = (
+    (stat.S_ISDIR, "a directory"),
+    (stat.S_ISFIFO, "a FIFO"),
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+    (stat.S_ISSOCK, "a socket"),
+)
+
+
+def _check_regular(mode: int, path: Path) -> None:
+    """Refuse anything but a regular file: a recording is one that ``Recorder`` wrote.
+
+    A FIFO would block the reader (or the writer's header check) without a word, and a
+    device would be read without end.
+
+    Raises:
+        RecordFormatError: naming what ``path`` is instead.
+    """
+    if not stat.S_ISREG(mode):
+        kind = next((name for test, name in _FILE_KINDS if test(mode)), "not a file")
+        raise RecordFormatError(f"{path}: is {kind}, not a regular file")
+
+
+def _open_regular(path: Path, flags: int) -> int:
+    """A descriptor of ``path`` opened with ``flags``, only if it is a regular file.
+
+    The type is checked before opening, so that no device is opened at all (a tty's open
+    can toggle its modem lines), and again on the descriptor, opened non-blocking so that
+    a FIFO put in the file's place in between cannot block the open; the descriptor is
+    blocking again when returned.
+
+    Raises:
+        RecordFormatError: ``path`` is not a regular file.
+        OSError: it cannot be opened.
+    """
+    _check_regular(os.stat(path).st_mode, path)
+    fd = os.open(path, flags | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
+    try:
+        _check_regular(os.fstat(fd).st_mode, path)
+        os.set_blocking(fd, True)
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd
 
 
 @dataclass(slots=True)
@@ -272,8 +319,9 @@ class Recorder:
         fsync_interval_s: seconds between fsyncs; 0 syncs every record.
 
     Raises:
-        RecordFormatError: ``path`` exists and is not a recording this version writes;
-            its subclass ``RecordingBusyError`` when another recorder holds the file.
+        RecordFormatError: ``path`` exists and is not a regular file holding a recording
+            this version writes; its subclass ``RecordingBusyError`` when another
+            recorder holds the file.
         ValueError: ``source_desc`` is longer than 1024 bytes in UTF-8.
         OSError: the file cannot be opened or written.
     """
@@ -323,7 +371,7 @@ class Recorder:
         _fsync_dir(self.path)
 
     def _open_existing(self, source_desc: str) -> io.FileIO:
-        f = open(self.path, "r+b", buffering=0)
+        f = open(_open_regular(self.path, os.O_RDWR), "r+b", buffering=0)
         try:
             _lock(f, self.path)
             try:
@@ -410,8 +458,8 @@ class Replay:
     because the lengths after it cannot be trusted.
 
     Raises:
-        RecordFormatError: (from the constructor) the header is missing, corrupt, or
-            of another format version.
+        RecordFormatError: (from the constructor) the file is not a regular file, or
+            its header is missing, corrupt, or of another format version.
         OSError: the file cannot be opened.
     """
 
@@ -419,7 +467,7 @@ class Replay:
         self.path = Path(path)
         self.records = 0
         self.bytes = 0
-        self._file: io.BufferedReader | None = open(self.path, "rb")
+        self._file: io.BufferedReader | None = open(_open_regular(self.path, os.O_RDONLY), "rb")
         try:
             self.header = _read_header(self._file, self.path)
         except BaseException:

@@ -20,8 +20,8 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from lunad.daemon.errors import ConfigError, LunadError, SourceOpenError
-from lunad.daemon.record import Pacer, Replay, check_speed
+from lunad.daemon.errors import ConfigError, LunadError, SourceLostError, SourceOpenError
+from lunad.daemon.record import Pacer, RecordFormatError, Replay, check_speed
 from lunad.daemon.source import Chunk, Source
 from lunad.daemon.wakeup import Wakeup
 
@@ -42,8 +42,12 @@ class ReplaySource(Source):
         max_gap_s: recorded gaps longer than this (seconds) are shortened to it.
 
     Raises:
-        SourceOpenError: the file cannot be opened.
-        RecordFormatError: the file is not a recording this version reads.
+        SourceOpenError: the file cannot be opened, or is not a recording this version
+            reads (not a regular file, a bad header: ``RecordFormatError``'s message).
+            The daemon checks the file at start and at a SIGHUP (``check_replay``), but
+            opens it again when the first subscriber comes, after a reload or a lost
+            read: a file replaced in between is a source that cannot be opened now,
+            reported on health and retried, as an absent serial port is.
         ValueError: ``speed`` is zero, negative or not finite.
     """
 
@@ -61,10 +65,16 @@ class ReplaySource(Source):
             self._replay = Replay(self.path)
         except OSError as exc:
             raise SourceOpenError(f"cannot open recording {self.path}: {exc}") from exc
+        except RecordFormatError as exc:
+            raise SourceOpenError(str(exc)) from exc
         self._chunks = iter(self._replay)
+        try:
+            self._next: Chunk | None = next(self._chunks, None)
+        except OSError as exc:
+            self._replay.close()
+            raise SourceOpenError(f"cannot read recording {self.path}: {exc}") from exc
         self._wakeup = Wakeup()
         self._closed = False
-        self._next: Chunk | None = next(self._chunks, None)
         self._due_s: float | None = None
 
     @classmethod
@@ -94,6 +104,9 @@ class ReplaySource(Source):
 
         Returns None when it is not due within ``timeout_s`` seconds, when ``cancel``
         woke the wait, after ``close``, and at once when the recording is exhausted.
+
+        Raises:
+            SourceLostError: the file could not be read (an I/O error of the card).
         """
         chunk = self._next
         if chunk is None or self._closed:
@@ -110,7 +123,10 @@ class ReplaySource(Source):
                     return None
         elif self._wait(0.0):
             return None
-        self._next = next(self._chunks, None)
+        try:
+            self._next = next(self._chunks, None)
+        except OSError as exc:
+            raise SourceLostError(f"cannot read recording {self.path}: {exc}") from exc
         self._due_s = None
         return chunk
 
