@@ -113,7 +113,9 @@ def run(args: argparse.Namespace) -> int:
     elif startup.reloads > reloads_before_reading:
         daemon.request_reload()
     try:
-        publisher = Publisher(cfg.publish.endpoint, cfg.publish.sndhwm)
+        publisher = Publisher(
+            cfg.publish.endpoint, cfg.publish.sndhwm, cfg.filter.to_filter_config().stale_after_s
+        )
     except PublishError as exc:
         daemon.close_recorder()
         print(f"lunad serve: {exc}", file=sys.stderr)

@@ -846,16 +846,17 @@ class Daemon:
         """
         old_pub = self.pub
         try:
-            pub = Publisher(new.publish.endpoint, new.publish.sndhwm)
+            pub = Publisher(new.publish.endpoint, new.publish.sndhwm, self._stale_after_s(new))
         except PublishError:
             if old_pub is None:
                 raise
             old_pub.close()
             self.pub = None
             try:
-                pub = Publisher(new.publish.endpoint, new.publish.sndhwm)
+                pub = Publisher(new.publish.endpoint, new.publish.sndhwm, self._stale_after_s(new))
             except PublishError:
-                self.pub = Publisher(old.publish.endpoint, old.publish.sndhwm)
+                stale = self._stale_after_s(old)
+                self.pub = Publisher(old.publish.endpoint, old.publish.sndhwm, stale)
                 self.pub.start_waker(self._wake_loop)
                 raise
             old_pub = None
@@ -863,6 +864,11 @@ class Daemon:
         pub.start_waker(self._wake_loop)
         if old_pub is not None:
             old_pub.close()
+
+    @staticmethod
+    def _stale_after_s(cfg: Config) -> float:
+        """After how long a cached range is replayed as stale, seconds ([filter])."""
+        return cfg.filter.to_filter_config().stale_after_s
 
     def _source_desc(self, cfg: Config | None = None) -> str:
         s = (cfg or self.cfg).source

@@ -10,7 +10,7 @@
 #
 # What install puts where (PREFIX=/opt/lunad):
 #   $PREFIX/venv/                      python3 -m venv, lunad and its dependencies
-#   $PREFIX/share/                     raspberry-pi.md, 99-tfluna.rules (udev example)
+#   $PREFIX/share/                     raspberry-pi.md, security.md, 99-tfluna.rules (udev example)
 #   /etc/systemd/system/lunad@.service the unit (ExecStart under $PREFIX)
 #   /etc/sysusers.d/lunad.conf         the "lunad" system user (created right away)
 #   /etc/modules-load.d/lunad.conf     USB-serial and i2c-dev drivers at boot
@@ -136,6 +136,7 @@ do_install() {
     install -m 0644 "$SRC/systemd/lunad.toml.example" "$CONF_DIR/lunad.toml.example"
     install -m 0644 "$SRC/systemd/99-tfluna.rules" "$SHARE/99-tfluna.rules"
     install -m 0644 "$SRC/docs/raspberry-pi.md" "$SHARE/raspberry-pi.md"
+    install -m 0644 "$SRC/docs/security.md" "$SHARE/security.md"
     printf 'lunad installed from %s\n' "$SRC" >"$MARKER"
     chmod 0644 "$MARKER"
 
@@ -158,9 +159,16 @@ do_install() {
 
 Next, for a sensor called "front" (one config file and one instance per sensor):
 
-  sudo cp /etc/lunad/lunad.toml.example /etc/lunad/front.toml   # then edit [sensor] name,
-                                                                # [source] device, [publish] endpoint
+  sudo cp /etc/lunad/lunad.toml.example /etc/lunad/front.toml   # then edit [sensor] name
+                                                                # and [source] device
   sudo systemctl enable --now lunad@front
+
+It publishes on ipc:///run/lunad/front.sock ([publish] endpoint: another instance
+needs its own, ipc:///run/lunad/<instance>.sock). Only user and group lunad may
+connect: add the user your robot code runs as to the group (it takes effect at
+its next login):
+
+  sudo usermod -aG lunad <user>
 
 Check it with: systemctl status lunad@front ; journalctl -u lunad@front -f
 Guide: $PREFIX/share/raspberry-pi.md
@@ -187,7 +195,7 @@ do_uninstall() {
             # Only what install put there: an older install wrote its marker into a
             # PREFIX it shared with other files.
             rm -rf "$VENV"
-            rm -f "$SHARE/99-tfluna.rules" "$SHARE/raspberry-pi.md" "$MARKER"
+            rm -f "$SHARE/99-tfluna.rules" "$SHARE/raspberry-pi.md" "$SHARE/security.md" "$MARKER"
             rmdir "$SHARE" 2>/dev/null || true
             rmdir "$ROOT$PREFIX" 2>/dev/null ||
                 say "kept $PREFIX: it holds files lunad did not put there"

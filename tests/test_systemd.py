@@ -8,6 +8,10 @@
 - The daemon's system calls, traced with strace, are all allowed by the unit's
   ``SystemCallFilter=`` (a call outside it would be refused on a Pi, and libzmq aborts
   on a refused call).
+- The unit's ``MemoryHigh=``, ``MemoryMax=``, ``TasksMax=`` and ``LimitNOFILE=`` against
+  the daemon's footprint, measured under that ``LimitNOFILE=`` with the publisher's
+  ``MAX_PEERS`` subscribers connected; the ipc endpoint the example config, the unit
+  and the installer agree on.
 - ``make install`` / ``make uninstall`` into a temporary root (DESTDIR).
 
 Tests that need systemd's tools skip when they are absent; ``.ci/run`` installs them.
@@ -18,6 +22,7 @@ from __future__ import annotations
 import itertools
 import os
 import re
+import resource
 import shlex
 import shutil
 import signal
@@ -32,7 +37,10 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import zmq
 
+from lunad.daemon.publisher import MAX_PEERS
+from lunad.protocol.client import Subscriber
 from lunad.sim.pty_device import PtyDevice
 
 REPO = Path(__file__).resolve().parent.parent
@@ -89,14 +97,17 @@ def unit_environment(tmp_path: Path) -> dict[str, str]:
     return {**os.environ, "CONFIGURATION_DIRECTORY": str(tmp_path / "etc-lunad")}
 
 
-def write_instance_config(tmp_path: Path, instance: str, device: str) -> str:
+def write_instance_config(
+    tmp_path: Path, instance: str, device: str, rate_hz: int | None = None
+) -> str:
     """``<CONFIGURATION_DIRECTORY>/<instance>.toml`` as docs/raspberry-pi.md tells the user."""
     conf = tmp_path / "etc-lunad"
     conf.mkdir(exist_ok=True)
     endpoint = f"ipc://{tmp_path}/run-lunad/{instance}.sock"  # RuntimeDirectory=lunad
+    rate = "" if rate_hz is None else f"frame_rate_hz = {rate_hz}\n"
     (conf / f"{instance}.toml").write_text(
-        f'[sensor]\nname = "{instance}"\n\n[source]\nkind = "serial"\ndevice = "{device}"\n\n'
-        f'[publish]\nendpoint = "{endpoint}"\n'
+        f'[sensor]\nname = "{instance}"\n{rate}\n[source]\nkind = "serial"\n'
+        f'device = "{device}"\n\n[publish]\nendpoint = "{endpoint}"\n'
     )
     return endpoint
 
@@ -152,6 +163,44 @@ def test_security_exposure_is_ok() -> None:
     exposure = float(m.group(1))
     print(f"systemd-analyze security --offline=yes: {exposure} {m.group(2)}")
     assert exposure <= MAX_EXPOSURE, r.stdout
+
+
+def systemd_size(value: str) -> int:
+    """A systemd size such as ``160M``, in bytes (K, M, G, T are powers of 1024)."""
+    m = re.fullmatch(r"(\d+)([KMGT]?)", value)
+    assert m, f"not a size this test reads: {value!r}"
+    return int(m.group(1)) * 1024 ** " KMGT".index(m.group(2) or " ")
+
+
+def test_unit_sets_resource_limits() -> None:
+    """The figures themselves are checked against a running daemon below; here, that
+    they are set and fit together."""
+    svc = service_settings(UNIT.read_text())
+    high, top = systemd_size(svc["MemoryHigh"][0]), systemd_size(svc["MemoryMax"][0])
+    assert 0 < high < top  # throttled before it is killed
+    assert svc["MemorySwapMax"] == ["0"]  # else MemoryMax= only moves pages to swap
+    assert int(svc["TasksMax"][0]) > 0
+    nofile = int(svc["LimitNOFILE"][0])  # one figure: soft and hard limit alike
+    # One place per peer, and a second publisher's worth while a reload moves the
+    # endpoint; and every descriptor below FD_SETSIZE for the publisher's select().
+    assert 2 * MAX_PEERS < nofile <= 1024
+
+
+def test_the_ipc_endpoint_is_the_units_runtime_directory() -> None:
+    """The example config binds ipc:///run/lunad/<instance>.sock, which the unit's
+    RuntimeDirectory= makes lunad:lunad 0750 and its UMask= leaves group-connectable;
+    the installer's next steps say the same."""
+    svc = service_settings(UNIT.read_text())
+    assert svc["RuntimeDirectory"] == ["lunad"] and svc["RuntimeDirectoryMode"] == ["0750"]
+    assert svc["User"] == ["lunad"] and svc["Group"] == ["lunad"]
+    assert svc["UMask"] == ["0007"]  # sockets 0770: group lunad connects, others do not
+    example = (REPO / "systemd/lunad.toml.example").read_text()
+    publish = example.split("\n[publish]\n", 1)[1].split("\n[", 1)[0]
+    endpoints = re.findall(r'^endpoint = "([^"]+)"', publish, re.MULTILINE)
+    assert endpoints == ["ipc:///run/lunad/front.sock"]
+    install = (REPO / "systemd/install.sh").read_text()
+    assert "ipc:///run/lunad/front.sock" in install and "usermod -aG lunad" in install
+    assert "usermod -aG lunad" in (REPO / "systemd/lunad.sysusers").read_text()
 
 
 # --- the exact ExecStart line ----------------------------------------------------------
@@ -325,6 +374,99 @@ def test_every_system_call_the_daemon_makes_is_allowed(
     assert not refused, f"SystemCallFilter= would refuse {refused}"
 
 
+def footprint(pid: int) -> tuple[float, int, int]:
+    """VmHWM in MiB, threads and open descriptors of ``pid``, from /proc."""
+    status = Path(f"/proc/{pid}/status").read_text()
+    hwm = re.search(r"^VmHWM:\s+(\d+) kB$", status, re.MULTILINE)
+    threads = re.search(r"^Threads:\s+(\d+)$", status, re.MULTILINE)
+    assert hwm and threads, status
+    return int(hwm.group(1)) / 1024, int(threads.group(1)), len(os.listdir(f"/proc/{pid}/fd"))
+
+
+def test_the_limits_leave_room_above_the_measured_footprint(
+    device: Callable[..., PtyDevice], tmp_path: Path, helpers: Any
+) -> None:
+    """The unit's ExecStart= under its LimitNOFILE=, at 250 Hz, with one subscriber
+    reading and ``MAX_PEERS`` - 1 that never read (each keeps up to sndhwm messages
+    and a kernel buffer full in the daemon), plus four more that the cap refuses: the
+    worst case the publisher bounds. Its peak memory, threads and descriptors must
+    leave the headroom the unit's comments give."""
+    svc = service_settings(UNIT.read_text())
+    memory_high = systemd_size(svc["MemoryHigh"][0]) / 2**20
+    memory_max = systemd_size(svc["MemoryMax"][0]) / 2**20
+    tasks_max, nofile = int(svc["TasksMax"][0]), int(svc["LimitNOFILE"][0])
+    dev = device(rate_hz=250, output_enabled=False)
+    endpoint = write_instance_config(tmp_path, "front", dev.path, rate_hz=250)
+    env = unit_environment(tmp_path)
+    notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)  # its descriptor counts
+    notify.bind(str(tmp_path / "notify.sock"))
+    notify.settimeout(0.2)
+    env |= {"NOTIFY_SOCKET": str(tmp_path / "notify.sock")}
+
+    def limit_descriptors() -> None:  # what systemd does with LimitNOFILE=
+        resource.setrlimit(resource.RLIMIT_NOFILE, (nofile, nofile))
+
+    log = tmp_path / "daemon.log"
+    with log.open("wb") as out:
+        proc = subprocess.Popen(
+            exec_start_argv("front", env),
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            env=env,
+            preexec_fn=limit_descriptors,
+        )
+    ctx: zmq.Context[zmq.Socket[bytes]] = zmq.Context()
+    stalled: list[zmq.Socket[bytes]] = []
+    reader = None
+    try:
+        limits = Path(f"/proc/{proc.pid}/limits").read_text()
+        assert re.search(rf"^Max open files\s+{nofile}\s+{nofile}\s", limits, re.MULTILINE)
+        reader = Subscriber(endpoint)
+        first = helpers.wait_for(reader, helpers.is_range, timeout=helpers.startup_s)
+        _, _, descriptors_alone = footprint(proc.pid)
+        descriptors_alone -= 1  # the reader's
+        for _ in range(MAX_PEERS - 1 + 4):
+            sub = ctx.socket(zmq.SUB)
+            sub.setsockopt(zmq.LINGER, 0)
+            sub.setsockopt(zmq.RCVHWM, 1)  # its backlog stays in the daemon
+            sub.connect(endpoint)
+            sub.subscribe(b"")
+            stalled.append(sub)
+        # 1500 frames, 6 s: enough to fill each stalled peer's queue (sndhwm 1000) and
+        # kernel buffer (about 600 messages) in the daemon.
+        helpers.ranges_through(reader, first.seq + 1500, timeout_s=60.0)
+        hwm_mib, threads, descriptors = footprint(proc.pid)
+        assert proc.poll() is None, log.read_text()
+    finally:
+        for sub in stalled:
+            sub.close()
+        ctx.term()
+        lost = reader.lost if reader is not None else 0
+        if reader is not None:
+            reader.close()
+        if proc.poll() is None:
+            proc.terminate()
+        try:
+            proc.wait(10)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+            notify.close()
+    figures = f"VmHWM {hwm_mib:.1f} MiB, {threads} threads, {descriptors} descriptors"
+    print(f"{MAX_PEERS} peers at 250 Hz: {figures} ({descriptors_alone} with none)")
+    assert lost == 0, figures  # the reading subscriber kept every message
+    assert descriptors <= descriptors_alone + MAX_PEERS + 4, figures  # the cap held
+    # Memory: the unit keeps MemoryHigh= over twice, MemoryMax= over three times this.
+    assert 2 * hwm_mib <= memory_high and 3 * hwm_mib <= memory_max, figures
+    # Threads: a reload moving the endpoint adds a second publisher (every thread but
+    # the read loop) and ExecReload= runs kill: 2x the threads; the unit keeps twice that.
+    assert 2 * (2 * threads) <= tasks_max, figures
+    # Descriptors: two publishers with every peer during such a reload, a record file
+    # and a replugged sensor, and a burst of MAX_PEERS connections not shut yet.
+    assert 2 * descriptors + 2 + MAX_PEERS <= nofile, figures
+
+
 # --- make install / make uninstall into a temporary root -------------------------------
 
 
@@ -352,6 +494,7 @@ EXPECTED_FILES = {
     "etc/lunad/lunad.toml.example": 0o644,
     "opt/lunad/share/99-tfluna.rules": 0o644,
     "opt/lunad/share/raspberry-pi.md": 0o644,
+    "opt/lunad/share/security.md": 0o644,
 }
 
 
@@ -364,6 +507,7 @@ def test_make_install_and_uninstall_into_destdir(tmp_path: Path) -> None:
     for out in (first.stdout, again.stdout):
         assert "sudo systemctl enable --now lunad@front" in out
         assert "/etc/lunad/front.toml" in out
+        assert "ipc:///run/lunad/front.sock" in out and "usermod -aG lunad" in out
     for rel, want in EXPECTED_FILES.items():
         assert mode(root / rel) == want, rel
     assert mode(root / "etc/lunad") == 0o755
