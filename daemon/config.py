@@ -13,7 +13,6 @@ import ipaddress
 import math
 import os
 import re
-import stat
 import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal, get_args, get_origin
@@ -29,6 +28,7 @@ from pydantic import (
 )
 
 from lunad.daemon.errors import ConfigError
+from lunad.daemon.file_kind import file_kind
 from lunad.filters import FilterConfig
 from lunad.protocol.commands import BAUD_RATES, FRAME_RATES_HZ
 
@@ -395,12 +395,12 @@ def _read_config_text(path: Path | str) -> str:
     """
     where = f"config file {path} (--config)"
     try:
-        kind = _file_kind(os.stat(path).st_mode)
+        kind = file_kind(os.stat(path).st_mode)
         if kind is not None:
             raise ConfigError(f"{where} is {kind}, not a regular file")
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
         try:
-            kind = _file_kind(os.fstat(fd).st_mode)
+            kind = file_kind(os.fstat(fd).st_mode)
             if kind is not None:
                 raise ConfigError(f"{where} is {kind}, not a regular file")
             raw = _read_at_most(fd, MAX_CONFIG_BYTES + 1)
@@ -418,22 +418,6 @@ def _read_config_text(path: Path | str) -> str:
         return raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise ConfigError(f"{where} cannot be read: {exc}") from None
-
-
-_FILE_KINDS = (
-    (stat.S_ISDIR, "a directory"),
-    (stat.S_ISFIFO, "a FIFO"),
-    (stat.S_ISCHR, "a character device"),
-    (stat.S_ISBLK, "a block device"),
-    (stat.S_ISSOCK, "a socket"),
-)
-
-
-def _file_kind(mode: int) -> str | None:
-    """None for a regular file, else what it is ("a FIFO"), for the error."""
-    if stat.S_ISREG(mode):
-        return None
-    return next((name for test, name in _FILE_KINDS if test(mode)), "not a file")
 
 
 def _read_at_most(fd: int, limit: int) -> bytes:

@@ -94,7 +94,7 @@ import stat
 import struct
 import termios
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from time import monotonic_ns
@@ -249,19 +249,32 @@ def _zap_origin(address: bytes, ipc: bool) -> str:
     return text
 
 
-def _origin(fd: int) -> tuple[int, str] | None:
-    """The inode of the socket on ``fd`` and where its peer is: the address of a TCP
-    peer, the process id of an ipc one (``SO_PEERCRED``); None when ``fd`` is closed.
-
-    It reads them through a duplicate, so libzmq's descriptor stays libzmq's to close.
-    """
+@contextlib.contextmanager
+def _borrowed(fd: int) -> Iterator[socket.socket | None]:
+    """A socket object on a duplicate of libzmq's descriptor ``fd`` (None when it is
+    closed), so that libzmq's descriptor stays libzmq's to close."""
     try:
         dup = os.dup(fd)
     except OSError:
-        return None
+        yield None
+        return
     try:
-        with socket.socket(fileno=dup) as s:
-            dup = -1
+        s = socket.socket(fileno=dup)
+    except OSError:
+        os.close(dup)
+        yield None
+        return
+    with s:
+        yield s
+
+
+def _origin(fd: int) -> tuple[int, str] | None:
+    """The inode of the socket on ``fd`` and where its peer is: the address of a TCP
+    peer, the process id of an ipc one (``SO_PEERCRED``); None when ``fd`` is closed."""
+    try:
+        with _borrowed(fd) as s:
+            if s is None:
+                return None
             ino = os.fstat(s.fileno()).st_ino
             if s.family != socket.AF_UNIX:
                 return ino, str(s.getpeername()[0])
@@ -271,9 +284,6 @@ def _origin(fd: int) -> tuple[int, str] | None:
             return ino, f"pid {_UCRED.unpack(cred)[0]}"
     except OSError:
         return None
-    finally:
-        if dup >= 0:
-            os.close(dup)
 
 
 def _bytes_received(fd: int) -> int | None:
@@ -282,18 +292,12 @@ def _bytes_received(fd: int) -> int | None:
     if _TCP_INFO is None:
         return None
     try:
-        dup = os.dup(fd)
-    except OSError:
-        return None
-    try:
-        with socket.socket(fileno=dup) as s:
-            dup = -1
+        with _borrowed(fd) as s:
+            if s is None:
+                return None
             info = s.getsockopt(socket.IPPROTO_TCP, _TCP_INFO, _TCP_INFO_LEN)
     except OSError:
         return None
-    finally:
-        if dup >= 0:
-            os.close(dup)
     if len(info) < _BYTES_RECEIVED_OFFSET + _BYTES_RECEIVED.size:
         return None
     return int(_BYTES_RECEIVED.unpack_from(info, _BYTES_RECEIVED_OFFSET)[0])

@@ -26,7 +26,6 @@ import io
 import logging
 import math
 import os
-import stat
 import struct
 import threading
 import time
@@ -37,6 +36,7 @@ from pathlib import Path
 from typing import Protocol
 
 from lunad.daemon.errors import LunadError
+from lunad.daemon.file_kind import file_kind
 from lunad.daemon.source import Chunk
 
 log = logging.getLogger(__name__)
@@ -145,15 +145,6 @@ def _read_header(f: _ReadableFile, path: Path) -> RecordingHeader:
     return RecordingHeader(version, unix_ns, mono_ns, desc, rate)
 
 
-_FILE_KINDS = (
-    (stat.S_ISDIR, "a directory"),
-    (stat.S_ISFIFO, "a FIFO"),
-    (stat.S_ISCHR, "a character device"),
-    (stat.S_ISBLK, "a block device"),
-    (stat.S_ISSOCK, "a socket"),
-)
-
-
 def _check_regular(mode: int, path: Path) -> None:
     """Refuse anything but a regular file: a recording is one that ``Recorder`` wrote.
 
@@ -163,8 +154,8 @@ def _check_regular(mode: int, path: Path) -> None:
     Raises:
         RecordFormatError: naming what ``path`` is instead.
     """
-    if not stat.S_ISREG(mode):
-        kind = next((name for test, name in _FILE_KINDS if test(mode)), "not a file")
+    kind = file_kind(mode)
+    if kind is not None:
         raise RecordFormatError(f"{path}: is {kind}, not a regular file")
 
 
