@@ -133,8 +133,12 @@ def _default_factory(bus: int | str) -> SMBusLike:
     """``smbus2.SMBus`` for a bus number or path; the fake for ``sim``."""
     if bus == SIM_BUS:
         from lunad.sim.fake_i2c import FakeSMBus
+        from lunad.sim.physics import RealisticSensor, Truth
 
-        return FakeSMBus()
+        # the realistic sensor the pty sim plays, a light wall 2 m away indoors: the
+        # paper's literal equations read as daylight, nearly every reading high_ambient
+        scene = Truth(distance_m=2.0, reflectivity=0.8, angle_deg=0.0, lux=300.0)
+        return FakeSMBus(model=RealisticSensor(), truth=scene)
     import smbus2
 
     bus_obj: SMBusLike = smbus2.SMBus(bus)
