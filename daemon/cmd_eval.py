@@ -1,9 +1,9 @@
 """``lunad eval``: every filter against truth on scenarios, no I/O.
 
-Runs the scenarios through the realistic sensor profile and the very RangeFilter the
-daemon uses, next to the baselines (raw, the sensor's amp rule, a 5-sample median, a
-fixed-noise Kalman filter, an oracle Kalman filter), and prints the metrics and the
-issue's targets (sim/evaluate.py has the definitions). The simulator and filters
+Runs the scenarios through two sensor physics and the very RangeFilter the daemon
+uses, next to the baselines (the raw readings, a 5-sample median, and an independent
+oracle Kalman filter), and prints the metrics and the targets (sim/evaluate.py has
+the definitions). The simulator and filters
 are imported inside ``run`` so that ``lunad --help`` stays quick.
 """
 

@@ -19,6 +19,10 @@ class State(StrEnum):
     STOPPED = "stopped"  # the daemon's last message: shutting down, or a replay ended
 
 
+_DEFAULT_NOISE = (FilterConfig().sigma0_m, FilterConfig().k_m_per_lux)
+"""sigma0 and k of the datasheet fit: the noise model is ``default`` while they are."""
+
+
 class Health:
     """Summarises the daemon's counters per interval as health messages.
 
@@ -81,8 +85,7 @@ class Health:
         dropouts = self.dropouts - self._dropouts_mark
         self._t_mark, self._frames_mark, self._dropouts_mark = t_mono_ns, self.frames, self.dropouts
         fc = self.filter_config
-        default = FilterConfig()
-        configured = (fc.sigma0_m, fc.k_m_per_lux) != (default.sigma0_m, default.k_m_per_lux)
+        configured = (fc.sigma0_m, fc.k_m_per_lux) != _DEFAULT_NOISE
         return HealthMessage(
             sensor=self.sensor,
             run=self.run,

@@ -59,6 +59,7 @@ from lunad.daemon.soak_bytes import DAEMON_INPUT, SENSOR_OUTPUT, compare
 from lunad.daemon.source import Chunk
 from lunad.protocol.commands import CommandReply
 from lunad.protocol.frame import Frame, encode_frame, temp_raw_from_c
+from lunad.protocol.messages import topic
 from lunad.protocol.parser import FrameParser
 from lunad.sim.pty_device import DeviceError, PtyDevice
 
@@ -519,7 +520,7 @@ class MainSubscriber(threading.Thread):
         self.sock.setsockopt(zmq.LINGER, 0)
         self.sock.setsockopt(zmq.RECONNECT_IVL, 100)
         for kind in ("range", "health"):
-            self.sock.setsockopt(zmq.SUBSCRIBE, f"{kind}/{SENSOR}".encode())
+            self.sock.setsockopt(zmq.SUBSCRIBE, topic(kind, SENSOR))
         self.sock.connect(endpoint)
         self.ledger = ledger
         self.stop = threading.Event()
@@ -623,7 +624,7 @@ class SlowSubscriber(threading.Thread):
         self.sock.setsockopt(zmq.RCVHWM, rcvhwm)
         self.sock.setsockopt(zmq.RCVBUF, 4096)
         self.sock.setsockopt(zmq.LINGER, 0)
-        self.sock.setsockopt(zmq.SUBSCRIBE, f"range/{SENSOR}".encode())
+        self.sock.setsockopt(zmq.SUBSCRIBE, topic("range", SENSOR))
         self.sock.connect(endpoint)
         self.reading = threading.Event()
         self.reading.set()

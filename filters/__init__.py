@@ -2,7 +2,6 @@
 
 from lunad.filters.config import AMP_REF_DEFAULT, FilterConfig
 from lunad.filters.estimate import Estimate, Reason, Status, Zone
-from lunad.filters.noise import lux_of
 from lunad.filters.range_filter import RangeFilter
 from lunad.filters.zone import ZoneClassifier
 
@@ -15,5 +14,4 @@ __all__ = [
     "Status",
     "Zone",
     "ZoneClassifier",
-    "lux_of",
 ]

@@ -71,9 +71,3 @@ GAP_NORMALISERS: tuple[tuple[float, ...], ...] = tuple(
     for g1 in range(MAX_GAP_FRAMES + 1)
 )
 """``gap_normaliser(g1, g2)`` looked up as ``GAP_NORMALISERS[g1][g2]`` (index 0 unused)."""
-
-
-def lux_of(c_m: float, sigma0_m: float, k_m_per_lux: float) -> float:
-    """L_hat = (c - sigma0) / k in lux, clipped at 0 (paper eq. 2 inverted)."""
-    lux = (c_m - sigma0_m) / k_m_per_lux
-    return lux if lux > 0.0 else 0.0

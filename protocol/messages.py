@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import json
 import math
+import secrets
+from pathlib import Path
 from typing import Annotated, Any, ClassVar, Final, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
@@ -134,8 +136,6 @@ def topic(kind: str, sensor: str) -> bytes:
 
 def new_run_id() -> str:
     """A fresh run identity: 16 hex digits from the OS's random source."""
-    import secrets
-
     return secrets.token_hex(8)
 
 
@@ -276,8 +276,6 @@ def reasons_json(reasons: tuple[str, ...]) -> bytes:
 
 def _write_schemas() -> None:
     """Write ``json_schemas()`` into this package's ``schema/`` folder."""
-    from pathlib import Path
-
     folder = Path(__file__).with_name("schema")
     folder.mkdir(exist_ok=True)
     for name, doc in json_schemas().items():

@@ -18,7 +18,7 @@ from lunad.daemon.source import Chunk, Source
 from lunad.filters import FilterConfig
 from lunad.protocol.client import Subscriber
 from lunad.protocol.commands import CommandId, encode_reply
-from lunad.protocol.messages import HealthMessage, RangeMessage, decode
+from lunad.protocol.messages import HealthMessage, RangeMessage, decode, topic
 from lunad.sim.pty_device import PtyDevice
 from lunad.sim.virtual_sensor import VirtualSensor
 
@@ -32,13 +32,13 @@ def late_subscription_s(endpoint: str, sensor: str, last_seq: int) -> float:
         sock.connect(endpoint)
         time.sleep(0.3)  # the connection is up; nothing is subscribed yet
         t0 = time.monotonic()
-        sock.setsockopt(zmq.SUBSCRIBE, f"range/{sensor}".encode())
-        sock.setsockopt(zmq.SUBSCRIBE, f"health/{sensor}".encode())
+        sock.setsockopt(zmq.SUBSCRIBE, topic("range", sensor))
+        sock.setsockopt(zmq.SUBSCRIBE, topic("health", sensor))
         got = {}
         while len(got) < 2:
             assert sock.poll(5000), "no cached message within 5 s"
-            topic, payload = sock.recv_multipart()
-            got[topic.split(b"/")[0].decode()] = decode(topic, payload)
+            frame, payload = sock.recv_multipart()
+            got[frame.split(b"/")[0].decode()] = decode(frame, payload)
         took = time.monotonic() - t0
     finally:
         sock.close(linger=0)
