@@ -68,6 +68,7 @@ from lunad.protocol.registers import (
     REBOOT_VALUE,
     SAMPLE_BLOCK_LEN,
     SIGNATURE,
+    SN_LEN,
     TRIGGER_VALUE,
     Mode,
     Register,
@@ -454,7 +455,8 @@ class I2CSource(Source):
     def write(self, data: bytes) -> None:
         """Take UART command frames and answer as a UART TF-Luna would (docs/tfluna.md section 2.2).
 
-        GET_VERSION answers from the version registers; SAMPLE_FREQ sets the pacing
+        GET_VERSION answers from the version registers, READ_MANU_BIN from the serial
+        number registers; SAMPLE_FREQ sets the pacing
         (0: sample only on SAMPLE_TRIG) and echoes the rate in force; OUTPUT_EN
         pauses or resumes sampling and echoes; SAMPLE_TRIG takes one sample on the
         next read. Replies come out of the next ``read`` ahead of any sample.
@@ -482,10 +484,16 @@ class I2CSource(Source):
                 self._replies += encode_reply(cmd_id, bytes((int(enabled),)))
             elif cmd_id == CommandId.SAMPLE_TRIG:
                 self._triggers_pending += 1
+            elif cmd_id == CommandId.READ_MANU_BIN:  # the serial number registers 0x10..0x1D
+                sn = bytes(self._block(Register.SN, SN_LEN))
+                self._replies += encode_reply(cmd_id, sn)
             else:
                 log.debug("%s: ignoring UART command %#04x (no I2C equivalent)", self, cmd_id)
         except (struct.error, IndexError):
             log.debug("%s: malformed UART command %#04x %s", self, cmd_id, payload.hex(" "))
+        except OSError as exc:  # a NACK reading registers: health's field stays null
+            self.nacks += 1
+            log.debug("%s: no answer to UART command %#04x: %s", self, cmd_id, exc)
 
     # -- lifecycle --------------------------------------------------------------------
 

@@ -20,6 +20,7 @@ from lunad.protocol.client import Subscriber
 from lunad.protocol.messages import RangeMessage
 from lunad.sim.physics import Truth
 from lunad.sim.pty_device import PtyDevice
+from lunad.sim.virtual_sensor import SERIAL_NUMBER
 
 
 def ranges_until_quiet(sub: Subscriber, quiet_s: float = 1.0) -> list[RangeMessage]:
@@ -222,6 +223,7 @@ def test_simulated_i2c_bus_through_the_daemon(
     assert sum(m.status == "ok" for m in msgs) >= 40, [m.reasons for m in msgs][:5]
     assert not any("high_ambient" in m.reasons for m in msgs)
     assert h.firmware == "3.0.9" and h.checksum_errors == 0
+    assert h.serial == SERIAL_NUMBER.decode()  # registers 0x10..0x1D, via command 0x12
     assert "opened i2c bus sim address 0x10" in d.log
 
 
