@@ -3,8 +3,10 @@
 How this works: the command runs ``lunad.sim.sweep.run_sweep`` for the chosen
 profiles (paper eqs 1-3 read literally, and the calibrated profile whose default
 parameters ``lunad sweep --fit`` produced), prints Table I's rows next to the model's,
-and optionally writes Fig. 2 / Fig. 3 style plots. ``--fit`` re-runs the fit
-(``lunad.sim.fit``) and prints parameters to paste into sim/paper_model.py.
+and optionally writes Fig. 2 / Fig. 3 style plots with Table I and the text's trends
+on the model's axes. ``--plot`` checks matplotlib and its directory before the sweep,
+so a missing extra costs no sweep. ``--fit`` re-runs the fit (``lunad.sim.fit``) and
+prints parameters to paste into sim/paper_model.py, and each text claim's criteria.
 """
 
 from __future__ import annotations
@@ -24,8 +26,18 @@ EPILOG = """examples:
   lunad sweep --profile paper        equations 1-3 of the paper only
   lunad sweep --format json          rows as JSON objects
   lunad sweep --readings 200 --seed 7
-  lunad sweep --fit                  refit the calibrated profile (about 15 s)
-  lunad sweep --plot figs/           Fig. 2 / Fig. 3 style PNGs (needs matplotlib)
+  lunad sweep --fit                  refit the calibrated profile (seconds); each text
+                                     claim printed with its criteria and values
+  lunad sweep --plot figs/           per profile: fig2_*.png (vs lux), fig3_*.png (vs
+                                     angle), table1_r_*.png (vs R), model lines with
+                                     Table I and the text's bounds as markers
+  lunad sweep --profile calibrated --readings 200 --plot figs/
+
+--plot needs matplotlib: pip install 'lunad[plot]' (in a checkout:
+.venv/bin/pip install matplotlib).
+
+exit status: 0 done; 2 bad option; 69 --plot without matplotlib; 78 --plot DIR
+cannot be created; 74 a plot cannot be written.
 """
 
 
@@ -110,7 +122,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--plot",
         type=Path,
         metavar="DIR",
-        help="write Fig. 2 and Fig. 3 style PNGs into DIR (needs matplotlib)",
+        help="write Fig. 2, Fig. 3 and Table I R-row PNGs, paper and model on the same axes,"
+        " into DIR (created if missing; needs matplotlib)",
     )
     p.set_defaults(func=run)
 
@@ -127,7 +140,7 @@ def _profiles(choice: str) -> list[Profile]:
 
 
 def _run_fit() -> int:
-    from lunad.sim.fit import fit, format_profile
+    from lunad.sim.fit import fit, format_claims, format_profile
     from lunad.sim.sweep import format_table
 
     result = fit()
@@ -139,10 +152,33 @@ def _run_fit() -> int:
     print("To make these the default, replace CALIBRATED_DEFAULT in sim/paper_model.py.\n")
     print("Table I from the fitted profile's exact expectation:")
     print(format_table(result.rows))
-    print("text claims:")
-    for c in result.claims:
-        mark = "ok  " if c.holds else "FAIL"
-        print(f"  {mark} {c.name}: {c.mean_error_cm:.2f} cm, {c.failure_rate_pct:.1f} %")
+    print(format_claims(result.claims), end="")
+    return 0
+
+
+def _prepare_plot(out_dir: Path) -> int:
+    """Check what ``--plot`` needs before the sweep runs; 0 or the exit code.
+
+    A missing matplotlib is a missing support program (EX_UNAVAILABLE), a DIR that
+    cannot be created a bad option (EX_CONFIG, as for ``lunad sim``'s output files).
+    """
+    from lunad.daemon.errors import EX_CONFIG, EX_UNAVAILABLE
+    from lunad.sim.sweep import PLOT_INSTALL, require_matplotlib
+
+    try:
+        require_matplotlib()
+    except ImportError as exc:
+        print(
+            f"lunad sweep: --plot needs matplotlib, which cannot be imported ({exc});"
+            f" install it with {PLOT_INSTALL}",
+            file=sys.stderr,
+        )
+        return EX_UNAVAILABLE
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        print(f"lunad sweep: --plot: cannot create {out_dir}: {exc}", file=sys.stderr)
+        return EX_CONFIG
     return 0
 
 
@@ -151,7 +187,7 @@ def run(args: argparse.Namespace) -> int:
 
     ``--fit`` with a sweep option is refused, as argparse refuses exclusive options:
     running the fit and dropping the option would hand back something other than
-    what was asked for (no JSON, no plots) after a quarter of a minute.
+    what was asked for (no JSON, no plots) after seconds of work.
     """
     if args.fit:
         given = [flag for dest, flag in SWEEP_ONLY.items() if getattr(args, dest) is not None]
@@ -164,6 +200,8 @@ def run(args: argparse.Namespace) -> int:
             )
             return 2
         return _run_fit()
+    if args.plot is not None and (code := _prepare_plot(args.plot)):
+        return code
     from lunad.sim.sweep import DEFAULT_SEED, PAPER_GRID, format_json, format_table, run_sweep
 
     seed = DEFAULT_SEED if args.seed is None else args.seed
@@ -185,22 +223,14 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(format_table(results), end="")
     if args.plot is not None:
-        try:
-            from lunad.sim.sweep import write_plots
+        from lunad.daemon.errors import EX_IOERR
+        from lunad.sim.sweep import write_plots
 
+        try:
             paths = write_plots(profiles, args.plot, readings, seed)
-        except ModuleNotFoundError as exc:
-            if exc.name != "matplotlib" and not str(exc.name).startswith("matplotlib"):
-                raise
-            print(
-                "lunad sweep: --plot needs matplotlib; install the extra:"
-                " pip install 'lunad[plot]'",
-                file=sys.stderr,
-            )
-            return 1
         except OSError as exc:
             print(f"lunad sweep: cannot write plots to {args.plot}: {exc}", file=sys.stderr)
-            return 1
+            return EX_IOERR
         for path in paths:
             print(f"wrote {path}", file=sys.stderr)
     return 0

@@ -145,3 +145,60 @@ FIT_ROWS: tuple[Table1Row, ...] = tuple(r for r in TABLE1_ROWS if not r.lower_bo
 """The 13 two-sided rows: the targets of the calibrated fit and of the tolerance."""
 
 WORST_CASE_ROW: Table1Row = TABLE1_ROWS[-1]
+
+
+@dataclass(frozen=True, slots=True)
+class TextTrend:
+    """A trend the paper's text states for Fig. 2 or Fig. 3, as a bound over a stretch of x.
+
+    The figures themselves are not in the text we have, only their descriptions, so
+    ``lunad sweep --plot`` draws these bounds next to the model's curves. The text
+    does not say which cells a sentence pools; ``targets`` names the curves it speaks of.
+
+    Attributes:
+        figure: 2 (x = illuminance, lux) or 3 (x = incidence angle, degrees).
+        quantity: "error" (mean absolute error, cm) or "failure" (failure rate, percent).
+        x_lo: start of the stretch of the x axis the sentence covers (lux or degrees).
+        x_hi: its end (equal to ``x_lo`` for a single point).
+        bound: the value the text gives, cm or percent.
+        above: True for "over", "exceeding" (the curve lies above), False for "below".
+        targets: the curves the sentence is about, e.g. "R 0.9".
+        source: where the paper says it (section or abstract).
+    """
+
+    figure: int
+    quantity: str
+    x_lo: float
+    x_hi: float
+    bound: float
+    above: bool
+    targets: str
+    source: str
+
+    def label(self) -> str:
+        """Short annotation, e.g. ``R 0.9 < 1 cm (IV.A)``."""
+        unit = "cm" if self.quantity == "error" else "%"
+        return f"{self.targets} {'>' if self.above else '<'} {self.bound:g} {unit} ({self.source})"
+
+
+TEXT_TRENDS: tuple[TextTrend, ...] = (
+    # IV.A: "highly reflective targets (R = 0.9) ... up to 70,000 lux, maintaining measurement
+    # accuracy"; "reflective targets maintain sub-centimeter accuracy across most of the
+    # illumination range".
+    TextTrend(2, "error", 0.0, LUX_MAX, 1.0, False, "R 0.9", "IV.A"),
+    # Abstract: "at high illumination levels (over 20,000 lux), the mean distance error
+    # increases from below 2 cm to over 6 cm, with dropout rates exceeding 15% for
+    # low-reflective surfaces" (which R the error is for is not said).
+    TextTrend(2, "error", 0.0, 20000.0, 2.0, False, "R unstated", "abstract"),
+    TextTrend(2, "error", 20000.0, LUX_MAX, 6.0, True, "R unstated", "abstract"),
+    TextTrend(2, "failure", 20000.0, LUX_MAX, 15.0, True, "R 0.1", "abstract"),
+    # IV.C: "to maintain sub-centimeter accuracy, the incidence angle should be kept below
+    # 45°"; "the error increases rapidly, reaching over 6 cm at 75°".
+    TextTrend(3, "error", 0.0, 45.0, 1.0, False, "R unstated", "IV.C"),
+    TextTrend(3, "error", 75.0, 75.0, 6.0, True, "all R", "IV.C"),
+    # Abstract: "For reflectivity values below 0.3 and angles above 60°, error rates exceeded
+    # 7 cm and dropouts surpassed 20%" (R 0.1 is the plotted curve below 0.3).
+    TextTrend(3, "error", 60.0, THETA_MAX_DEG, 7.0, True, "R 0.1", "abstract"),
+    TextTrend(3, "failure", 60.0, THETA_MAX_DEG, 20.0, True, "R 0.1", "abstract"),
+)
+"""The figure descriptions of seed 000 (abstract, IV.A, IV.C) that carry a number."""
