@@ -11,11 +11,23 @@ Opening says why it failed in terms of what to do: a port another process holds 
 where pyserial's ``flock`` shows, readable without root); a missing Raspberry Pi UART
 (``/dev/serial0``, ``/dev/ttyAMA*``, ``/dev/ttyS0``) gets the hint to enable it, as
 docs/raspberry-pi.md section 2 describes.
+
+A path is often a name for a node rather than the node: ``/dev/serial0``, a udev
+``/dev/tfluna-front`` or a ``/dev/serial/by-id/...`` link. When such a name moves to
+another node while the port stays open (a udev rule re-pointed, two adapters swapping
+names), the old node need not hang up: it just goes silent, and the daemon would wait
+on it for ever. So a silent port checks that its path still names it: on a read that
+timed out with nothing, at most once a second (``PATH_CHECK_S``), never on the path a
+frame takes. When the path now names another node, or nothing, the source logs one
+INFO line with both targets, closes the port and raises ``SourceLostError``: the
+daemon then reopens from the path as after an unplug, which also configures the
+sensor behind it (it may be another one) and clears health's firmware and serial.
 """
 
 from __future__ import annotations
 
 import errno
+import logging
 import os
 import re
 import select
@@ -23,6 +35,7 @@ import termios
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from time import monotonic_ns
 from typing import TYPE_CHECKING
 
 import serial
@@ -31,6 +44,15 @@ from lunad.daemon.errors import SourceLostError, SourceOpenError
 from lunad.daemon.source import Source
 
 VMIN_MAX = 255  # termios VMIN is one byte (termios(3))
+PATH_CHECK_S = 1.0
+"""A silent port checks at most this often that its path still names it (two ``stat``
+calls): a sensor that stops answering is told from a moved name within about this,
+and a port that times out many reads a second pays for one check."""
+PATH_GONE_ERRNOS = frozenset({errno.ENOENT, errno.ENOTDIR, errno.ELOOP})
+"""``stat`` errnos that mean the path names no node now (a dangling or looping link);
+any other failure (EACCES) says nothing about the port and keeps it."""
+
+log = logging.getLogger("lunad.serial")
 
 if TYPE_CHECKING:
     from lunad.daemon.config import SourceSection
@@ -191,6 +213,10 @@ class SerialSource(Source):
         device: a path or a pyserial URL.
         baud: the line's speed, Bd.
 
+    A read that times out on a path (not a URL) checks, at most once a second, that
+    the path still names the open node (``_check_path``): a silent port behind a name
+    that moved is given up with ``SourceLostError``, so that it is reopened.
+
     Raises:
         PortBusyError: another process holds the port.
         SourceOpenError: it cannot be opened for another reason (absent, no permission,
@@ -221,6 +247,16 @@ class SerialSource(Source):
             poller.register(self._fd, select.POLLIN)
             poller.register(self._abort, select.POLLIN)
             self._poll = poller.poll
+        # The node the path named at open, for ``_check_path``; None for URL ports.
+        self._opened: os.stat_result | None = None
+        self._opened_name = ""
+        self._next_path_check = 0
+        if self._poll is not None:
+            try:
+                self._opened = os.fstat(self._fd)
+                self._opened_name = os.ttyname(self._fd)
+            except OSError:
+                self._opened_name = os.path.realpath(device)
 
     @classmethod
     def from_config(cls, cfg: SourceSection) -> SerialSource:
@@ -264,7 +300,8 @@ class SerialSource(Source):
         a ``select`` on them. Always poll, even with a zero timeout: pyserial sets
         VMIN = VTIME = 0, so an empty tty reads as b"" (not EAGAIN), and only after
         a ``poll`` said readable does b"" mean the device is gone. ``loop://``,
-        ``socket://`` and ``spy://`` keep the generic path.
+        ``socket://`` and ``spy://`` keep the generic path. Only a ``poll`` that timed
+        out may look at the path (``_check_path``): bytes cost nothing more.
         """
         poll = self._poll
         try:
@@ -273,6 +310,8 @@ class SerialSource(Source):
             fd = self._fd
             ready = poll(None if timeout_s is None else timeout_s * 1000.0)
             if not ready:
+                if self._opened is not None and monotonic_ns() >= self._next_path_check:
+                    self._check_path()  # silent: is the path still this port?
                 return b""
             if len(ready) > 1 or ready[0][0] != fd:
                 os.read(self._abort, 1000)  # cancel() woke us
@@ -286,6 +325,45 @@ class SerialSource(Source):
         if not data:
             raise SourceLostError(f"{self.device}: readable but returned no data (unplugged?)")
         return data
+
+    def _check_path(self) -> None:
+        """Close the port and raise ``SourceLostError`` when the configured path no
+        longer names the open node: it resolves to another one, or to nothing.
+
+        Called by ``_read`` only after a ``poll`` that timed out with nothing, and at
+        most every ``PATH_CHECK_S``: a streaming port is never checked, since its
+        bytes show it works. The open node is compared by identity (``fstat`` of the
+        descriptor against ``stat`` of the path: device and inode), so a link that is
+        rewritten to the same target is no change. Closing here frees the old node at
+        once; the caller reopens from the path (the daemon after 0.1 s, as after an
+        unplug), and ``close`` again is harmless.
+
+        Raises:
+            SourceLostError: the path now names another node or none; the message
+                names the old and the new target.
+        """
+        opened = self._opened
+        if opened is None:
+            return
+        self._next_path_check = monotonic_ns() + int(PATH_CHECK_S * 1e9)
+        try:
+            now = os.stat(self.device)
+        except OSError as exc:
+            if exc.errno not in PATH_GONE_ERRNOS:
+                return
+            target = None
+        else:
+            if os.path.samestat(now, opened):
+                return
+            target = os.path.realpath(self.device)
+        old = self._opened_name
+        if target is None:
+            why = f"{self.device} no longer exists; {old}, open through it, is silent"
+        else:
+            why = f"{self.device} now resolves to {target}, not {old}, which is open and silent"
+        log.info("%s: closing %s to open %s again", why, old, self.device)
+        self.close()
+        raise SourceLostError(why)
 
     def _read_generic(self, timeout_s: float | None) -> bytes:
         ser = self._ser
@@ -319,6 +397,7 @@ class SerialSource(Source):
         if self._poll is not None and self._vmin:
             self.batch(0)  # a port already gone fails quietly in there
         self._poll = None
+        self._opened = None
         try:
             self._ser.close()
         except (OSError, serial.SerialException):
