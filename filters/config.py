@@ -67,9 +67,12 @@ class FilterConfig:
             holds its course, the spectral density of white acceleration, m^2/s^3:
             small, so that a still target is averaged like a mean (``lunad eval``).
         manoeuvre_accel_psd: the process noise while the manoeuvre test fires,
-            m^2/s^3: a robot braking at 10 m/s^2 is followed within a few frames.
+            m^2/s^3: a robot braking at 10 m/s^2, or a beam swept across a wall at
+            90 deg/s, is followed within a few frames (10 missed fewest targets in
+            ``lunad eval`` among 5, 10, 20 and 50).
         manoeuvre_sigmas: the manoeuvre test's threshold, in standard deviations of
-            the innovations' running mean.
+            the innovations' running mean (3.5: at 3, the light jumps of
+            ``cloud_flicker`` fired it on a still target four times in 10 s).
         manoeuvre_frames: readings the innovations' fast running mean spans (the
             slow one, and their mean square, span five times as many); also how
             long the raised process noise is held after the test last fired. In
@@ -82,9 +85,9 @@ class FilterConfig:
         step_confirm: this many consecutive outliers that agree with each other are
             a real step: the track restarts there.
         noise_frames: readings the fast noise average spans (noise.py): it follows
-            a cloud or a lamp.
-        noise_slow_frames: readings the slow noise average spans: the one the
-            filter, ``lux_est``, the zone and ``high_ambient`` use.
+            a cloud or a lamp, and weights each reading (r = c^2 / S^2 + q).
+        noise_slow_frames: readings the slow noise average spans: the one
+            ``lux_est``, the zone and ``high_ambient`` use.
         noise_jump_ratio: when the fast and slow averages part by more than this
             factor the light has changed and the slow one restarts from the fast.
         noise_clip_sigmas: second differences beyond this many of their own
@@ -92,8 +95,8 @@ class FilterConfig:
         lux_observable_sigma_m: below this reading noise, metres, the 1 cm output
             steps hide the light and ``lux_est`` is null.
         lux_init: ambient light assumed before the noise is measured, lux.
-        sigma_floor_m: the published sigma never goes below this, metres: the 1 cm
-            output steps leave a bias no averaging removes (resolution / sqrt(12)).
+        sigma_floor_m: the published sigma never goes below this, metres: how far
+            averaging 1 cm output steps that the noise dithers can be trusted.
         hysteresis: relative band around the amp, S and ambient-lux thresholds: a
             state is entered at the threshold and left only this fraction beyond it.
             10 % is about three sigma of the amp's own jitter.
@@ -120,8 +123,8 @@ class FilterConfig:
     k_m_per_lux: float = K_DEFAULT_M_PER_LUX
     resolution_m: float = RESOLUTION_M
     accel_psd: float = 1e-4
-    manoeuvre_accel_psd: float = 5.0
-    manoeuvre_sigmas: float = 3.0
+    manoeuvre_accel_psd: float = 10.0
+    manoeuvre_sigmas: float = 3.5
     manoeuvre_frames: int = 10
     init_speed_sigma_m_s: float = 1.0
     gate_sigmas: float = 4.0
@@ -132,7 +135,7 @@ class FilterConfig:
     noise_clip_sigmas: float = 2.0
     lux_observable_sigma_m: float = 0.004
     lux_init: float = 0.0
-    sigma_floor_m: float = 0.002
+    sigma_floor_m: float = 0.001
     hysteresis: float = 0.1
     zone_hysteresis: float = 0.2
     range_hysteresis_m: float = 0.05

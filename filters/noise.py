@@ -23,10 +23,12 @@ sd, E[min(|d2|, C sd)] = m1(C) sd, so the average A gives
     sigma_d2 = A / m1,    c^2 + q S^2 = A^2 / (6 m1^2),
 
 and L_hat = (c - sigma0) / k, the paper's eq. 2 inverted. Two averages run side by
-side: a fast one (``noise_frames``) that follows a cloud or a lamp, and a slow one
-(``noise_slow_frames``) whose scatter is small enough for a lux figure; when the two
-part by more than ``noise_jump_ratio`` the light has changed and the slow one starts
-again from the fast one.
+side: a fast one (``noise_frames``) that follows a cloud or a lamp and weights each
+reading, and a slow one (``noise_slow_frames``) whose scatter is small enough for a
+lux figure; when the two part by more than ``noise_jump_ratio`` the light has changed
+and the slow one starts again from the fast one. The slow one is fed only while the
+fast one says the noise is observable (below): a still, close target in between
+leaves it where the last observable target left it.
 
 A reading that does not feed the filter (weak, saturated, no distance) breaks the
 chain; up to ``MAX_GAP_FRAMES - 1`` missing frames are bridged with the divided
@@ -37,7 +39,10 @@ samples at a fixed rate, the read times jitter.
 Where the noise is below the output step (a strong, close return: sigma under
 ``lux_observable_sigma_m``), the readings repeat the same centimetre and say nothing
 about the light: the estimate is then not published (``lux_est`` null), and the
-reading's variance is the step's own, q.
+reading's variance is the step's own, q. Below about 5 mm the quantised readings of a
+still target also depend on where it sits between two steps, which the noise cannot
+tell apart from the light: a box at 1.21 m under 300 lux reads several klux there
+(``obstacles`` in ``lunad eval``), one of the limits docs/filter.md lists.
 """
 
 from __future__ import annotations

@@ -5,11 +5,15 @@ evidence for each choice):
 
 1. S = amp / amp_ref (paper eq. 1, amp_ref from ``lunad calibrate``).
 2. Hard gates with hysteresis (policy.py) -> ``dropout``. A reading inside a
-   hysteresis band, or a little beyond the range, still feeds the filter.
+   hysteresis band, or a little beyond the range, still feeds the filter; one in the
+   weak gate's band (above amp_min, not yet back above the band) is published
+   ``degraded`` with ``weak_signal``, so a track is not hidden while the amp climbs.
 3. The noise: c = sigma0 + k L (paper eq. 2) measured from the second differences of
    the raw readings (noise.py), which smooth motion and steps do not move. The
-   reading's variance is r = c^2 / S^2 + q (paper eq. 3, q the 1 cm steps), and
-   L_hat = (c - sigma0) / k is published where the noise is above the output step.
+   reading's variance is r = c^2 / S^2 + q (paper eq. 3, q the 1 cm steps) with c
+   from the fast average, which follows a cloud within a tenth of a second;
+   L_hat = (c - sigma0) / k from the slow average, fed only while the noise is above
+   the output step, is published there and null elsewhere.
 4. A constant-velocity Kalman filter whose process noise adapts to manoeuvres: it
    runs at ``accel_psd`` (nearly still: it averages a still target like a mean)
    until the innovations carry a bias that their own spread cannot explain, then at
@@ -24,7 +28,8 @@ evidence for each choice):
 5. The published sigma is honest about what P cannot see: sqrt(P00) plus, for each
    running mean, the part of m^2 that its own scatter (1 - rho) / (1 + rho) times
    the mean square does not explain: a bias of the track (a lag, a start of
-   motion). On an outlier frame it covers the disagreement with the reading.
+   motion). On an outlier frame it covers the disagreement with the reading, unless
+   that sigma would pass ``sigma_unreliable_m``: then the frame is a ``dropout``.
    ``stale`` when nothing was accepted for ``stale_after_s``.
 6. Zone (zone.py) from L_hat (0 where unobservable), S and the published sigma.
 
@@ -63,6 +68,7 @@ _WEAK_FAR = (Reason.WEAK_SIGNAL, Reason.TOO_FAR)
 _UNRELIABLE_ZONE = (Reason.UNRELIABLE_ZONE,)
 _AMBIENT_UNRELIABLE = (Reason.HIGH_AMBIENT, Reason.UNRELIABLE_ZONE)
 _OUTLIER = (Reason.OUTLIER,)
+_WEAK_OUTLIER = (Reason.WEAK_SIGNAL, Reason.OUTLIER)
 _OUTLIER_AMBIENT = (Reason.OUTLIER, Reason.HIGH_AMBIENT)
 _NONE: tuple[Reason, ...] = ()
 _STALE = (Reason.STALE,)
@@ -119,6 +125,7 @@ class RangeFilter:
         "_min_in",
         "_min_m",
         "_obs2",
+        "_outlier_drop2",
         "_q_m2",
         "_qa_hi",
         "_qa_lo",
@@ -194,6 +201,7 @@ class RangeFilter:
         self._drift_noise = (1.0 - rho) / (1.0 + rho)
         self._drift_thr2 = c.manoeuvre_sigmas * c.manoeuvre_sigmas * self._drift_noise
         self._hold_frames = c.manoeuvre_frames
+        self._outlier_drop2 = 4.0 * c.sigma_unreliable_m * c.sigma_unreliable_m
         # Noise (noise.py).
         self._sigma0 = c.sigma0_m
         self._inv_k = 1.0 / c.k_m_per_lux
@@ -264,6 +272,7 @@ class RangeFilter:
 
         # Gates with hysteresis (policy.py).
         z: float | None = None  # the reading, when it may feed the filter
+        marginal = False  # a reading in the weak gate's hysteresis band: degraded
         reasons: tuple[Reason, ...]
         if amp > AMP_AMBIENT:
             reasons = _SATURATED if amp == AMP_SATURATED else _AMBIENT
@@ -286,8 +295,11 @@ class RangeFilter:
                         reasons = _WEAK_CLOSE if close else _WEAK_FAR
                     else:
                         reasons = _CLOSE if close else _FAR
-                else:
-                    reasons = _WEAK if weak else _NONE
+                elif weak and z is None:
+                    reasons = _WEAK
+                else:  # weak with a reading: the amp is in the band above the threshold
+                    marginal = weak
+                    reasons = _NONE
 
         outlier_e = 0.0
         active = self.active
@@ -318,19 +330,22 @@ class RangeFilter:
                         y = lim
                     fast += self._fast_keep * (y - fast)
                     self.noise_fast = fast
-                    slow = self.noise_slow
-                    slow += self._slow_keep * (y - slow)
-                    if fast > self._jump * slow or slow > self._jump * fast:
-                        slow = fast  # the light changed: start the slow average again
-                    self.noise_slow = slow
-                    c2 = slow * slow * self._kA - self._q_m2 * s2
-                    if c2 < self._obs2 * s2:  # below the output step: not observable
-                        self.lux = None
-                        self.c2 = c2 if c2 > self._c2_floor else self._c2_floor
+                    c2 = fast * fast * self._kA - self._q_m2 * s2
+                    self.c2 = c2 if c2 > self._c2_floor else self._c2_floor
+                    if c2 < self._obs2 * s2:  # below the output step: not observable,
+                        self.lux = None  # and the slow average keeps what it last saw
                     else:
-                        self.c2 = c2
-                        lux = (sqrt(c2) - self._sigma0) * self._inv_k
-                        self.lux = lux if lux > 0.0 else 0.0
+                        slow = self.noise_slow
+                        slow += self._slow_keep * (y - slow)
+                        if fast > self._jump * slow or slow > self._jump * fast:
+                            slow = fast  # the light changed: start the slow average again
+                        self.noise_slow = slow
+                        c2 = slow * slow * self._kA - self._q_m2 * s2
+                        if c2 < self._obs2 * s2:
+                            self.lux = None
+                        else:
+                            lux = (sqrt(c2) - self._sigma0) * self._inv_k
+                            self.lux = lux if lux > 0.0 else 0.0
             self._z1 = z
             self._gap_prev = g1
             r = self.c2 / s2 + self._q_m2
@@ -430,6 +445,11 @@ class RangeFilter:
                     self._predict(dt)
 
         # Publish or not, ambient flag and zone.
+        if outlier_e:
+            if marginal:  # a marginal reading the track does not explain
+                reasons = _WEAK_OUTLIER
+            elif outlier_e * outlier_e > self._outlier_drop2:  # a sigma that covers it
+                reasons = _OUTLIER  # would say "unreliable": the robot gets no figure
         if not reasons and self.active:
             x = self.x
             if self._min_m <= x <= self._max_m:
@@ -461,8 +481,10 @@ class RangeFilter:
                     reasons = _AMBIENT_UNRELIABLE if ambient else _UNRELIABLE_ZONE
                 elif ambient:
                     reasons = _AMBIENT
-                else:
+                elif not marginal:
                     return _new(Estimate, (x, sigma, lux_out, s, _OK, _NONE, zone))
+                if marginal:
+                    reasons = (Reason.WEAK_SIGNAL, *reasons) if reasons else _WEAK
                 return _new(Estimate, (x, sigma, lux_out, s, _DEGRADED, reasons, zone))
             reasons = _CLOSE if x < self._min_m else _FAR
         self.zones.zone = _UNRELIABLE

@@ -56,14 +56,64 @@ def test_good_readings_give_plain_float_estimates() -> None:
     assert dim.lux_est is not None and dim.lux_est < 10_000
 
 
-def test_isolated_spike_is_degraded_outlier_showing_the_prediction() -> None:
+def test_small_outlier_is_degraded_showing_the_prediction_with_a_covering_sigma() -> None:
     flt = RangeFilter()
     feed(flt, noisy(random.Random(1), 2.0, 1800, 200), 1800)
-    est = flt.step(3.2, 1800, 200 * FRAME_NS)
+    est = flt.step(2.12, 1800, 200 * FRAME_NS)
     assert est.status is Status.DEGRADED
     assert est.reasons == (Reason.OUTLIER,)
     assert est.range_m == pytest.approx(2.0, abs=0.01)
+    assert est.sigma_m is not None and 2.0 * est.sigma_m >= abs(2.12 - est.range_m)
     assert flt.step(2.0, 1800, 201 * FRAME_NS).status is Status.OK
+
+
+def test_spike_no_sigma_can_cover_is_a_dropout() -> None:
+    """A reading 1.2 m off the track: a sigma that covered it would exceed the
+    unreliable zone's, so the frame carries no range at all."""
+    flt = RangeFilter()
+    feed(flt, noisy(random.Random(1), 2.0, 1800, 200), 1800)
+    est = flt.step(3.2, 1800, 200 * FRAME_NS)
+    assert est.status is Status.DROPOUT and est.range_m is None
+    assert est.reasons == (Reason.OUTLIER,)
+    assert flt.step(2.0, 1800, 201 * FRAME_NS).status is Status.OK
+
+
+def test_reading_in_the_weak_band_is_published_degraded_weak_signal() -> None:
+    """Below amp_min the frame is a dropout; back above it but inside the hysteresis
+    band the reading feeds the track and is published, marked degraded weak_signal;
+    above the band it is ok again."""
+    flt = RangeFilter()
+    rng = random.Random(4)
+    feed(flt, noisy(rng, 2.0, 1800, 100), 1800)
+    assert flt.step(None, 90, 100 * FRAME_NS).reasons == (Reason.WEAK_SIGNAL,)
+    band = feed(flt, noisy(rng, 2.0, 1800, 5), 105, k0=101)
+    for est in band:
+        assert est.status is Status.DEGRADED and est.range_m is not None
+        assert est.reasons[0] is Reason.WEAK_SIGNAL
+    after = feed(flt, noisy(rng, 2.0, 1800, 30), 1800, k0=106)
+    assert after[-1].status is Status.OK
+
+
+def test_light_jump_is_weighted_at_once_and_lux_resumes_after_a_close_target() -> None:
+    """The reading variance follows the fast noise average: after the light rises from
+    1 to 12 klux (c 1.65x, too little to restart the slow average), within 100
+    readings the filter weights the readings by the new noise. And a
+    still, close target whose noise hides under the output step leaves the slow (lux)
+    average as the far wall left it: back at the wall, lux is right at once."""
+    flt = RangeFilter()
+    rng = random.Random(5)
+    amp = 300
+    feed(flt, noisy(rng, 4.0, amp, 500, 1000.0), amp)
+    feed(flt, noisy(rng, 4.0, amp, 100, 12_000.0), amp, k0=500)
+    c_true = CFG.sigma0_m + CFG.k_m_per_lux * 12_000.0
+    assert flt.c2 == pytest.approx(c_true * c_true, rel=0.25)
+    feed(flt, noisy(rng, 4.0, amp, 1000, 40_000.0), amp, k0=600)
+    lux_wall = flt.step(4.0, amp, 1600 * FRAME_NS).lux_est
+    assert lux_wall is not None and lux_wall == pytest.approx(40_000.0, rel=0.3)
+    close = feed(flt, noisy(rng, 0.83, 20_000, 250), 20_000, k0=1601)
+    assert close[-1].lux_est is None
+    back = feed(flt, noisy(rng, 4.0, amp, 30, 40_000.0), amp, k0=1851)
+    assert all(e.lux_est is None or e.lux_est == pytest.approx(40_000.0, rel=0.3) for e in back)
 
 
 def test_real_step_is_followed_within_two_frames() -> None:
@@ -210,7 +260,8 @@ def test_spikes_apart_do_not_confirm_a_step(between: tuple[float | None, int]) -
         flt.step(z, amp, k * FRAME_NS)
     second = flt.step(3.51, 1800, 276 * FRAME_NS)
     assert second.reasons == (Reason.OUTLIER,)
-    assert second.range_m == pytest.approx(2.0, abs=0.05)
+    assert second.range_m is None  # 1.5 m off: no sigma could cover it
+    assert flt.x == pytest.approx(2.0, abs=0.05)
     assert flt.step(2.0, 1800, 277 * FRAME_NS).status is Status.OK
 
 

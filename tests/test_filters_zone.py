@@ -38,7 +38,9 @@ def test_leaving_unreliable_needs_margin() -> None:
 
 def test_zone_does_not_flap_on_a_static_indoor_scene() -> None:
     """Regression (seen in `lunad demo`): on a strong return indoors the fast lux estimate
-    spreads by klux from frame to frame; the zone uses the slower average and holds."""
+    spreads by klux from frame to frame; the zone uses the slower average and holds.
+    Among published estimates, that is: a multipath spike is a dropout frame, whose
+    zone is ``unreliable`` by definition (docs/messages.md)."""
     import itertools
     import random
 
@@ -50,11 +52,16 @@ def test_zone_does_not_flap_on_a_static_indoor_scene() -> None:
     rng = random.Random(5)
     truth = Truth(distance_m=1.21, reflectivity=0.8, angle_deg=0.0, lux=300.0)
     zones = []
+    dropouts = 0
     for k in range(2000):  # 20 s at 100 Hz
         r = model.sample(truth, rng)
         est = f.step(r.dist_cm / 100 if r.dist_cm else None, r.amp, k * 10_000_000)
         if k >= 200:
-            zones.append(est.zone)
+            if est.range_m is None:
+                dropouts += 1
+            else:
+                zones.append(est.zone)
+    assert dropouts < 0.01 * 1800
     changes = sum(a != b for a, b in itertools.pairwise(zones))
     assert changes <= 2, changes
     assert zones.count("stable") > 0.95 * len(zones)
