@@ -450,13 +450,17 @@ class Ledger:
             self._carry = b""
 
     def summary(self) -> dict[str, int]:
-        """The counters, for the report."""
+        """The counters, for the report. ``undecided_frames``: good frames written that
+        the reference parser has not found yet: one held until the next bytes decide it
+        (its checksum byte is 0x59), or swallowed by a false frame with no good frame
+        after it to show it."""
         with self._lock:
             return {
                 "frames_sent": self.good_sent,
                 "reference_frames": self.ref_count,
                 "false_frames": self.false_frames,
                 "eaten_frames": self.eaten,
+                "undecided_frames": len(self._pending),
                 "published": self.published,
                 "lost": self.lost,
                 "gaps": self.gaps,
