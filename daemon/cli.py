@@ -28,6 +28,7 @@ SUBCOMMANDS = (
     "lunad.daemon.cmd_eval",
     "lunad.daemon.cmd_bench",
     "lunad.daemon.cmd_soak",
+    "lunad.daemon.cmd_keys",
 )
 
 EPILOG = """\

@@ -27,6 +27,13 @@ examples:
   lunad serve --bus 1 --address 0x10          # TF-Luna wired for I2C (pin 5 to GND)
   lunad serve --replay field.lunarec --speed max   # replay a recording (lunad record)
   lunad serve --device /dev/serial0 --publish-hz 50   # low-power publishing
+  lunad serve --device /dev/serial0 --publish tcp://0.0.0.0:7781 \\
+      --curve-secret-key /etc/lunad/curve/server.key_secret \\
+      --curve-clients /etc/lunad/curve/clients   # encrypted, for listed clients only
+
+A TCP endpoint other hosts can reach is clear text unless CURVE is set (lunad keys
+makes the keys; docs/security.md). The client keys directory is re-read when it
+changes; the server key is read when the endpoint is bound.
 
 SIGHUP re-reads the config file; a bad new config is refused and the old one stays.
 Under systemd (Type=notify) it sends READY=1, STATUS=, WATCHDOG=1 and STOPPING=1.
@@ -53,6 +60,16 @@ def add_parser(sub: Any) -> None:
         "--publish-hz",
         metavar="N",
         help="low-power mode: read and filter every frame, publish at most N times a second",
+    )
+    p.add_argument(
+        "--curve-secret-key",
+        metavar="FILE",
+        help="CURVE: the server's secret key file (lunad keys server); tcp:// only",
+    )
+    p.add_argument(
+        "--curve-clients",
+        metavar="DIR",
+        help="CURVE: directory of the client public keys (*.key) to admit",
     )
     p.set_defaults(func=run)
 
@@ -81,6 +98,8 @@ def run(args: argparse.Namespace) -> int:
             "source.record": args.record,
             "publish.endpoint": args.publish,
             "publish.publish_hz": args.publish_hz,
+            "publish.curve_secret_key": args.curve_secret_key,
+            "publish.curve_clients": args.curve_clients,
             "sensor.name": args.name,
         }
         cfg = load_config(args.config, overrides)
@@ -114,7 +133,10 @@ def run(args: argparse.Namespace) -> int:
         daemon.request_reload()
     try:
         publisher = Publisher(
-            cfg.publish.endpoint, cfg.publish.sndhwm, cfg.filter.to_filter_config().stale_after_s
+            cfg.publish.endpoint,
+            cfg.publish.sndhwm,
+            cfg.filter.to_filter_config().stale_after_s,
+            curve=cfg.publish.curve,
         )
     except PublishError as exc:
         daemon.close_recorder()

@@ -4,6 +4,11 @@ Every mistake becomes one ``ConfigError`` whose message names the field (as writ
 in the TOML file, and the flag that sets it) and what is allowed, so ``lunad serve``
 can print it and exit with code 78 before opening anything. An example file with
 every key commented is ``systemd/lunad.toml.example``.
+
+The files the config names for ZeroMQ CURVE ([publish] ``curve_secret_key`` and
+``curve_clients``) are checked here too, so that a wrong path or a key file that is not
+one stops the start with the field's name rather than at the bind; ``read_key_file``
+is the one reader of key files, shared with the publisher and ``lunad keys``.
 """
 
 from __future__ import annotations
@@ -13,6 +18,8 @@ import ipaddress
 import math
 import os
 import re
+import stat
+import struct
 import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal, get_args, get_origin
@@ -56,6 +63,15 @@ PUBLISH_HZ_MIN = 0.01
 """Lowest ``publish_hz``: one message per 100 s. A lower rate has no use (a reading that
 old is stale), and the period 1/rate overflows the loop's nanosecond arithmetic at 1e-300."""
 PUBLISH_HZ_MAX = 250.0  # the sensor's fastest frame rate: faster would fold nothing
+MAX_KEY_FILE_BYTES = 4096
+"""Longest CURVE key file read, bytes: a ZPL certificate as ``zmq.auth`` writes it is
+300 to 400 bytes. A larger file is not a key file, and the
+type and size are checked before reading, so that a FIFO or a device is never read."""
+MAX_CLIENT_KEYS = 256
+"""Most entries ``curve_clients`` may hold (a robot fleet has a few keys): the publisher
+re-reads the directory while peers connect, so its size bounds that work. A directory
+holding more is refused at start, and admits nobody if it grows past this later."""
+Z85_KEY_CHARS = 40  # a CURVE key (32 bytes) in Z85 text
 MAX_SHOWN_CHARS = 80
 """A wrong value is quoted in an error up to this many characters: the line stays one
 line whatever a file holds (a 1 MiB string, an integer of 5000 digits)."""
@@ -74,6 +90,8 @@ FLAGS: dict[str, str] = {
     "source.record": "--record",
     "publish.endpoint": "--publish",
     "publish.publish_hz": "--publish-hz",
+    "publish.curve_secret_key": "--curve-secret-key",
+    "publish.curve_clients": "--curve-clients",
     "log_level": "--log-level",
 }
 """Which command-line flag overrides which config field (for error messages)."""
@@ -185,13 +203,87 @@ class SourceSection(_Section):
         return v
 
 
+@dataclasses.dataclass(frozen=True)
+class CurveFiles:
+    """Where a CURVE publisher's keys are: the server's secret key file (ZPL, as
+    ``zmq.auth.create_certificates`` and ``lunad keys server`` write it) and the
+    directory of the client public keys (``*.key``) it admits."""
+
+    secret_key: Path
+    clients: Path
+
+
 class PublishSection(_Section):
-    """[publish]: the ZeroMQ PUB socket."""
+    """[publish]: the ZeroMQ PUB socket.
+
+    ``curve_secret_key`` and ``curve_clients`` (both or neither, tcp:// only) make the
+    socket a CURVE server: the stream is encrypted, and only clients whose public key is
+    in ``curve_clients`` are admitted (docs/security.md).
+    """
 
     endpoint: str = DEFAULT_ENDPOINT
     health_interval_s: float = 1.0
     sndhwm: Annotated[int, Field(ge=1, le=1_000_000)] = 1000
     publish_hz: float | None = None
+    curve_secret_key: Annotated[str, Field(min_length=1)] | None = None
+    curve_clients: Annotated[str, Field(min_length=1)] | None = None
+
+    @property
+    def curve(self) -> CurveFiles | None:
+        """The CURVE key files, or None when the socket is not a CURVE server."""
+        if self.curve_secret_key is None or self.curve_clients is None:
+            return None
+        return CurveFiles(Path(self.curve_secret_key), Path(self.curve_clients))
+
+    @field_validator("curve_secret_key")
+    @classmethod
+    def _curve_secret_key(cls, v: str | None) -> str | None:
+        if v is not None:
+            try:
+                read_key_file(v, secret=True)
+            except ValueError as exc:
+                raise ValueError(
+                    f"must be the server's secret key file (`lunad keys server DIR` writes "
+                    f"DIR/server.key_secret): {exc}"
+                ) from None
+        return v
+
+    @field_validator("curve_clients")
+    @classmethod
+    def _curve_clients(cls, v: str | None) -> str | None:
+        if v is not None:
+            problem = key_dir_problem(v)
+            if problem is not None:
+                raise ValueError(
+                    f"must be the directory of the client public keys (*.key) to admit: {problem}"
+                )
+        return v
+
+    @model_validator(mode="after")
+    def _curve_pair(self) -> PublishSection:
+        """Both CURVE settings or neither, and only on TCP: half a CURVE configuration
+        would publish in clear text, or admit nobody, without saying so; an ipc socket
+        is guarded by its file's permissions and CURVE there is a mistake."""
+        secret, clients = self.curve_secret_key, self.curve_clients
+        if (secret is None) != (clients is None):
+            missing, given = (
+                ("curve_clients", "curve_secret_key")
+                if clients is None
+                else ("curve_secret_key", "curve_clients")
+            )
+            raise ValueError(
+                f"{missing} ({FLAGS['publish.' + missing]}) is not set but {given} "
+                f"({FLAGS['publish.' + given]}) is: CURVE needs both, the server's secret "
+                "key and the directory of client keys it admits"
+            )
+        if secret is not None and not self.endpoint.startswith("tcp://"):
+            raise ValueError(
+                "curve_secret_key (--curve-secret-key) and curve_clients (--curve-clients) "
+                f"work on tcp:// endpoints only, and endpoint (--publish) is {self.endpoint}: "
+                "an ipc socket is guarded by its file's permissions (group lunad, "
+                "docs/security.md); remove the CURVE settings or publish on tcp://"
+            )
+        return self
 
     @field_validator("endpoint")
     @classmethod
@@ -261,6 +353,112 @@ def endpoint_problem(endpoint: str) -> str | None:
     elif not _TCP_HOST_RE.fullmatch(host):
         return f"must look like {ENDPOINT_FORMS}"
     return tcp_port_problem(endpoint)
+
+
+def non_loopback_host(endpoint: str) -> str | None:
+    """The host of a ``tcp://`` endpoint that other machines may reach, or None.
+
+    None for ipc and for a TCP host on loopback: 127.0.0.0/8 (also as
+    ``[::ffff:127.0.0.1]``), ``[::1]`` and ``localhost``. Anything else (``*``,
+    ``0.0.0.0``, ``[::]``, a LAN address, an interface or host name) can be reached from
+    the network, as far as the daemon can tell.
+    """
+    m = _TCP_RE.fullmatch(endpoint)
+    if m is None:
+        return None
+    host = m["host"]
+    bare = host[1:-1] if host.startswith("[") else host
+    if bare.lower() == "localhost":
+        return None
+    try:
+        address = ipaddress.ip_address(bare)
+    except ValueError:
+        return host
+    mapped = getattr(address, "ipv4_mapped", None)
+    if address.is_loopback or (mapped is not None and mapped.is_loopback):
+        return None
+    return host
+
+
+def read_key_file(path: str | os.PathLike[str], secret: bool = False) -> tuple[bytes, bytes | None]:
+    """The Z85 public key of the ZPL certificate ``path``, and its secret key (None when
+    the file has none; with ``secret``, that is an error).
+
+    The file is read only if it is a regular file of at most ``MAX_KEY_FILE_BYTES`` (a
+    FIFO would block its reader, a device be read without end), and each key must be 40
+    Z85 characters (32 bytes); with ``secret``, the public key must be the secret key's.
+
+    Raises:
+        ValueError: why the file is not a usable key file, in one line.
+    """
+    from zmq import curve_public
+    from zmq.auth import load_certificate
+
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise ValueError(f"{path} does not exist") from None
+    except OSError as exc:
+        raise ValueError(f"{path} cannot be read: {exc.strerror or exc}") from None
+    kind = file_kind(st.st_mode)
+    if kind is not None:
+        raise ValueError(f"{path} is {kind}, not a regular file")
+    if st.st_size > MAX_KEY_FILE_BYTES:
+        raise ValueError(
+            f"{path} is larger than {MAX_KEY_FILE_BYTES} bytes; a key file is a few hundred"
+        )
+    try:
+        public, secret_key = load_certificate(path)
+    except OSError as exc:
+        raise ValueError(f"{path} cannot be read: {exc.strerror or exc}") from None
+    except ValueError:  # load_certificate found no public-key line
+        raise ValueError(f"{path} is not a key file: it has no public-key line") from None
+    if z85_key(public) is None:
+        raise ValueError(f"{path}: its public-key is not {Z85_KEY_CHARS} Z85 characters")
+    if secret_key is not None and z85_key(secret_key) is None:
+        raise ValueError(f"{path}: its secret-key is not {Z85_KEY_CHARS} Z85 characters")
+    if secret:
+        if secret_key is None:
+            raise ValueError(
+                f"{path} holds no secret key (a public .key file? the secret one ends in "
+                ".key_secret)"
+            )
+        if curve_public(secret_key) != public:
+            raise ValueError(f"{path}: its public-key is not the one of its secret-key")
+    return public, secret_key
+
+
+def z85_key(text: bytes | str) -> bytes | None:
+    """The 32 bytes of a CURVE key written as 40 Z85 characters, or None."""
+    from zmq.utils.z85 import decode
+
+    if len(text) != Z85_KEY_CHARS:
+        return None
+    try:
+        return decode(text)
+    except (ValueError, KeyError, struct.error):  # not ASCII / not Z85 / above 2**32
+        return None
+
+
+def key_dir_problem(path: str | os.PathLike[str]) -> str | None:
+    """What makes ``path`` unusable as a directory of client keys, or None: it must be a
+    directory that can be listed and holds at most ``MAX_CLIENT_KEYS`` entries."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        return f"{path} does not exist"
+    except OSError as exc:
+        return f"{path} cannot be read: {exc.strerror or exc}"
+    if not stat.S_ISDIR(mode):
+        return f"{path} is {file_kind(mode) or 'a regular file'}, not a directory"
+    try:
+        with os.scandir(path) as entries:
+            count = sum(1 for _ in zip(range(MAX_CLIENT_KEYS + 1), entries, strict=False))
+    except OSError as exc:
+        return f"{path} cannot be listed: {exc.strerror or exc}"
+    if count > MAX_CLIENT_KEYS:
+        return f"{path} holds more than {MAX_CLIENT_KEYS} entries; it is for a few client keys"
+    return None
 
 
 def is_ipv6_endpoint(endpoint: str) -> bool:

@@ -45,6 +45,16 @@ that per peer; it ends peers instead (tests/test_publisher_attacks.py measures e
   credentials). A connection from an address (TCP) or process (ipc) that flooded
   within ``FLOOD_PENALTY_S`` is reset instead (a libzmq SUB refused through ZAP would
   never connect again; one reset retries by itself).
+- CURVE (``curve``, TCP only): the socket is a CURVE server, so the stream is
+  encrypted and only a peer that holds the secret key of one of the public keys in the
+  ``clients`` directory gets past ZAP; any other key is refused there (status 400, a
+  log line with its Z85 text), which is what is wanted: a libzmq SUB so refused does
+  not try again. The directory is re-read when it changes (``_Allowlist``): while
+  handshakes come, at most every ``ALLOWLIST_CHECK_S``, in the loop like the rest of
+  ``pump``; a connection already admitted stays until it ends. A plain (NULL) peer
+  fails the ZMTP handshake before ZAP is asked, as does a client that pins another
+  server key. The handshake's frames are longer than ``MAX_INBOUND_FRAME_BYTES``
+  allows, so a CURVE socket takes ``CURVE_INBOUND_FRAME_BYTES``.
 - at most ``MAX_PEERS`` connections, counted from the monitor's accept and disconnect
   events, which give each connection's descriptor; one past the cap is ended at once.
   The newest goes, so subscribers already connected keep working, and a ZeroMQ SUB
@@ -87,6 +97,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import fcntl
+import logging
 import os
 import select
 import socket
@@ -101,10 +112,20 @@ from time import monotonic_ns
 from typing import cast
 
 import zmq
+from zmq.utils import z85
 
-from lunad.daemon.config import is_ipv6_endpoint
+from lunad.daemon.config import (
+    MAX_CLIENT_KEYS,
+    CurveFiles,
+    is_ipv6_endpoint,
+    non_loopback_host,
+    read_key_file,
+    z85_key,
+)
 from lunad.daemon.errors import PublishError
 from lunad.protocol.messages import as_cached
+
+log = logging.getLogger("lunad.publisher")
 
 LINGER_MS = 200  # on close, how long queued messages may still go out
 _EVENTS = int(zmq.EVENTS)  # plain ints: pyzmq's enum arithmetic costs on every call
@@ -134,6 +155,19 @@ MAX_INBOUND_FRAME_BYTES = 128
 command), its READY command about 30. A longer frame ends the connection before
 libzmq allocates it (a 1 MB topic cost 45 MiB of trie), and a random topic a peer may
 still send costs at most about 6 KiB of trie (48 bytes per byte)."""
+CURVE_INBOUND_FRAME_BYTES = 512
+"""``ZMQ_MAXMSGSIZE`` of a CURVE socket: libzmq applies it to the handshake's commands
+too, and a libzmq SUB's INITIATE is about 275 bytes (HELLO 200), so 128 would refuse
+every client (measured: 272 fails, 276 passes). 512 leaves room for a client's
+metadata. A subscription costs 33 bytes more when encrypted (an 81-byte SUBSCRIBE is
+a 114-byte MESSAGE), and only admitted peers get to send one."""
+ALLOWLIST_CHECK_S = 1.0
+"""How often, at most, the CURVE client-key directory is looked at for changes while
+peers connect, seconds: one ``stat`` per entry, and the keys read again only when one
+changed. A key removed from it is refused to connections that start this long later."""
+REFUSAL_LOG_INTERVAL_S = 1.0
+"""A refused CURVE key is logged at most this often, seconds; refusals in between are
+counted in the next line, so a peer retrying without end cannot fill the journal."""
 INBOUND_HWM = 8
 """``ZMQ_RCVHWM``, messages per peer: about what libzmq moves from a peer into its own
 unbounded queue each time it processes commands while the loop keeps up. An honest
@@ -239,6 +273,32 @@ def _claim_ipc_path(path: Path, endpoint: str) -> None:
     raise PublishError(f"cannot bind {endpoint}: another process is listening on {path}")
 
 
+def _server_keys(path: Path, endpoint: str) -> tuple[bytes, bytes]:
+    """The (public, secret) Z85 keys of the CURVE server's secret key file ``path``.
+
+    The config checked the file already; it is read again here, as it may have changed
+    since. A file other users can read is used, with a warning: its key no longer
+    proves that the publisher is this daemon.
+
+    Raises:
+        PublishError: the file is not a usable secret key file.
+    """
+    try:
+        public, secret = read_key_file(path, secret=True)
+    except ValueError as exc:
+        raise PublishError(f"cannot bind {endpoint} with CURVE: {exc}") from None
+    if secret is None:  # read_key_file(secret=True) raises first; for the type checker
+        raise PublishError(f"cannot bind {endpoint} with CURVE: {path} holds no secret key")
+    with contextlib.suppress(OSError):
+        if os.stat(path).st_mode & (stat.S_IRWXG | stat.S_IRWXO):
+            log.warning(
+                "CURVE: %s can be read by other users than its owner: whoever reads it "
+                "can pose as this daemon; chmod 0600 it",
+                path,
+            )
+    return public, secret
+
+
 def _zap_origin(address: bytes, ipc: bool) -> str:
     """``_origin``'s form of a ZAP request's address: libzmq gives a TCP peer's address,
     and ``localhost:uid:gid:pid`` for an ipc one."""
@@ -314,6 +374,88 @@ class _Peer:
     received: int | None = None  # tcpi_bytes_received at the last charge
 
 
+class _Allowlist:
+    """The client public keys a CURVE publisher admits: the ``*.key`` files of one
+    directory, each read with ``read_key_file``; a file that is not a key file is
+    logged and skipped.
+
+    ``refresh`` looks at the directory at most every ``ALLOWLIST_CHECK_S`` and reads
+    the keys again when an entry's name, inode, size or time changed. It fails closed:
+    a directory that cannot be listed, or holds more than ``MAX_CLIENT_KEYS`` entries,
+    admits nobody (one error line each time that changes).
+    """
+
+    def __init__(self, directory: Path) -> None:
+        self.directory = directory
+        self.keys: dict[bytes, str] = {}
+        """Admitted keys (32 bytes) -> the file's name, for the log."""
+        self._signature: object = None
+        self._next_check_ns = 0
+
+    def refresh(self, now: int, force: bool = False) -> None:
+        """Re-read the keys if the directory changed since the last look."""
+        if not force and now < self._next_check_ns:
+            return
+        self._next_check_ns = now + int(ALLOWLIST_CHECK_S * NS)
+        signature, files, problem = self._scan()
+        if signature == self._signature:
+            return
+        self._signature = signature
+        if problem is not None:
+            self.keys = {}
+            log.error("CURVE: %s; admitting no client until that is fixed", problem)
+            return
+        keys: dict[bytes, str] = {}
+        for path in files:
+            try:
+                public, _ = read_key_file(path)
+            except ValueError as exc:
+                log.warning("CURVE: skipping a client key: %s", exc)
+                continue
+            raw = z85_key(public)
+            if raw is not None:
+                keys[raw] = path.name
+        self.keys = keys
+        if keys:
+            log.info(
+                "CURVE: admitting %d client key(s) from %s: %s",
+                len(keys),
+                self.directory,
+                ", ".join(sorted(keys.values())),
+            )
+        else:
+            log.warning("CURVE: no client key in %s: every connection is refused", self.directory)
+
+    def _scan(self) -> tuple[object, list[Path], str | None]:
+        """The directory's signature, its ``*.key`` files (sorted), and what makes it
+        unusable (None when it is usable)."""
+        where = self.directory
+        entries: list[tuple[str, int, int, int]] = []
+        files: list[Path] = []
+        try:
+            with os.scandir(where) as it:
+                for entry in it:
+                    if len(entries) >= MAX_CLIENT_KEYS:
+                        return (
+                            "too many",
+                            [],
+                            f"{where} holds more than {MAX_CLIENT_KEYS} entries",
+                        )
+                    if not entry.name.endswith(".key"):
+                        entries.append((entry.name, 0, 0, 0))
+                        continue
+                    try:
+                        st = entry.stat()
+                    except OSError:
+                        entries.append((entry.name, -1, -1, -1))
+                    else:
+                        entries.append((entry.name, st.st_ino, st.st_size, st.st_mtime_ns))
+                    files.append(Path(entry.path))
+        except OSError as exc:
+            return ("unlisted", exc.errno), [], f"{where} cannot be listed: {exc.strerror or exc}"
+        return sorted(entries), sorted(files), None
+
+
 class Publisher:
     """A bound XPUB socket sending two-frame messages (topic, JSON).
 
@@ -321,11 +463,27 @@ class Publisher:
     ``subscriptions`` (subscription frames received, from anyone), ``replays``
     (cached messages re-sent), ``junk_frames`` (frames that are not subscriptions),
     ``refused_peers`` (connections shut at once: past ``MAX_PEERS``, or from where a
-    flood came within ``FLOOD_PENALTY_S``) and ``flooding_peers`` (connections shut for
-    ``FLOOD_UNREAD_BYTES``); ``peers`` is the number served.
+    flood came within ``FLOOD_PENALTY_S``), ``flooding_peers`` (connections shut for
+    ``FLOOD_UNREAD_BYTES``) and ``refused_keys`` (CURVE handshakes refused: a key not
+    in the client directory); ``peers`` is the number served.
+
+    With ``curve`` (a ``tcp://`` endpoint only) the socket is a CURVE server with the
+    key pair in ``curve.secret_key`` that admits the client keys in ``curve.clients``.
+    Without it, a TCP endpoint other machines may reach is bound with one warning: the
+    stream is then clear text to whoever can connect.
+
+    Raises:
+        PublishError: the endpoint cannot be bound, or the CURVE secret key cannot be
+            read.
     """
 
-    def __init__(self, endpoint: str, sndhwm: int = 1000, stale_after_s: float = 0.5) -> None:
+    def __init__(
+        self,
+        endpoint: str,
+        sndhwm: int = 1000,
+        stale_after_s: float = 0.5,
+        curve: CurveFiles | None = None,
+    ) -> None:
         self.endpoint = endpoint
         self._stale_after_ms = int(stale_after_s * 1000)
         """A cached range older than this is replayed as a ``stale`` dropout."""
@@ -340,6 +498,17 @@ class Publisher:
         self.junk_frames = 0
         self.refused_peers = 0
         self.flooding_peers = 0
+        self.refused_keys = 0
+        self._refusals_unlogged = 0
+        self._next_refusal_log_ns = 0
+        self._allowlist: _Allowlist | None = None
+        """The client keys admitted; None without CURVE (every peer is admitted)."""
+        server_keys: tuple[bytes, bytes] | None = None
+        if curve is not None:
+            if not endpoint.startswith("tcp://"):
+                raise PublishError(f"cannot bind {endpoint} with CURVE: tcp:// endpoints only")
+            server_keys = _server_keys(curve.secret_key, endpoint)
+            self._allowlist = _Allowlist(curve.clients)
         self._last: dict[bytes, bytes] = {}
         self._replayed_ns: dict[bytes, int] = {}
         """When each cached topic was last replayed (monotonic ns)."""
@@ -378,7 +547,14 @@ class Publisher:
         self._sock.setsockopt(zmq.SNDHWM, sndhwm)
         self._sock.setsockopt(zmq.RCVHWM, INBOUND_HWM)
         self._sock.setsockopt(zmq.RCVBUF, INBOUND_SOCKET_BUFFER_BYTES)
-        self._sock.setsockopt(zmq.MAXMSGSIZE, MAX_INBOUND_FRAME_BYTES)
+        self._sock.setsockopt(
+            zmq.MAXMSGSIZE,
+            MAX_INBOUND_FRAME_BYTES if server_keys is None else CURVE_INBOUND_FRAME_BYTES,
+        )
+        if server_keys is not None:
+            self._sock.setsockopt(zmq.CURVE_SERVER, 1)
+            self._sock.setsockopt(zmq.CURVE_PUBLICKEY, server_keys[0])
+            self._sock.setsockopt(zmq.CURVE_SECRETKEY, server_keys[1])
         self._sock.setsockopt(zmq.HANDSHAKE_IVL, HANDSHAKE_IVL_MS)
         self._sock.setsockopt(zmq.LINGER, LINGER_MS)
         self._sock.setsockopt(zmq.XPUB_VERBOSE, 1)
@@ -404,6 +580,22 @@ class Publisher:
             raise PublishError(f"cannot bind {endpoint}: {exc}") from exc
         if self._ipc:
             self._socket_path = Path(endpoint.removeprefix("ipc://"))
+        if self._allowlist is not None and server_keys is not None:
+            log.info(
+                "CURVE: %s is a CURVE server with public key %s",
+                endpoint,
+                server_keys[0].decode("ascii"),
+            )
+            self._allowlist.refresh(monotonic_ns(), force=True)
+        elif (host := non_loopback_host(endpoint)) is not None:
+            log.warning(
+                "publishing on %s (host %s) in clear text, without CURVE: the stream is "
+                "readable by any host that can reach it, and any host that can redirect "
+                "the traffic can pose as this daemon; set [publish] curve_secret_key and "
+                "curve_clients (docs/security.md, section 2)",
+                endpoint,
+                host,
+            )
 
     @property
     def peers(self) -> int:
@@ -570,8 +762,9 @@ class Publisher:
         has answered; by then ``_read_monitor`` has usually seen it accepted, and reset
         it if penalized. A penalized one not yet seen gets no answer: the monitor's
         event comes next, or ``HANDSHAKE_IVL_MS`` ends it. No connection is refused
-        through ZAP, because a libzmq SUB refused so (an ERROR command) never connects
-        again, while one reset reconnects by itself.
+        through ZAP for a flood, because a libzmq SUB refused so (an ERROR command)
+        never connects again, while one reset reconnects by itself. That is why a
+        CURVE key not in the allowlist is refused through ZAP (``_curve_status``).
         """
         zap = self._zap
         if zap is None:
@@ -581,17 +774,49 @@ class Publisher:
                 request = zap.recv_multipart(_NOBLOCK)
             except zmq.Again:
                 break
-            # routing id, b"", version, request id, domain, address, identity, mechanism
+            # routing id, b"", version, request id, domain, address, identity, mechanism,
+            # then the credentials: CURVE's is the client's public key (32 bytes)
             if len(request) < 8:
                 continue
             origin = _zap_origin(request[5], self._ipc)
+            now = monotonic_ns()
             with self._peers_lock:
-                if monotonic_ns() < self._penalties.get(origin, 0):
+                if now < self._penalties.get(origin, 0):
                     continue
+            allowlist = self._allowlist
+            status = b"200" if allowlist is None else self._curve_status(allowlist, request, now)
+            text = b"OK" if status == b"200" else b"key not allowed"
             with contextlib.suppress(zmq.ZMQError):
-                zap.send_multipart([request[0], b"", b"1.0", request[3], b"200", b"OK", b"", b""])
+                zap.send_multipart([request[0], b"", b"1.0", request[3], status, text, b"", b""])
         else:
             self._more_queued()
+
+    def _curve_status(self, allowlist: _Allowlist, request: list[bytes], now: int) -> bytes:
+        """The ZAP status for a handshake on a CURVE socket: 200 for a CURVE peer whose
+        public key is in ``allowlist``, 400 for any other (logged, ``refused_keys``)."""
+        allowlist.refresh(now)
+        key = request[8] if len(request) > 8 else b""
+        if request[7] == b"CURVE" and len(key) == 32 and key in allowlist.keys:
+            return b"200"
+        self.refused_keys += 1
+        self._refusals_unlogged += 1
+        if now >= self._next_refusal_log_ns:
+            self._next_refusal_log_ns = now + int(REFUSAL_LOG_INTERVAL_S * NS)
+            shown = (
+                z85.encode(key).decode("ascii")
+                if len(key) == 32
+                else f"{request[7].decode('ascii', 'replace')} mechanism, no key"
+            )
+            more = self._refusals_unlogged - 1
+            log.info(
+                "CURVE: refused %s from %s: key not in %s%s",
+                shown,
+                request[5].decode("ascii", "replace"),
+                allowlist.directory,
+                f" ({more} more refused since the last such line)" if more else "",
+            )
+            self._refusals_unlogged = 0
+        return b"400"
 
     def _sweep(self, now: int, foreign: bool = False) -> None:
         """End every peer with more than ``FLOOD_UNREAD_BYTES`` waiting in its socket;

@@ -846,17 +846,16 @@ class Daemon:
         """
         old_pub = self.pub
         try:
-            pub = Publisher(new.publish.endpoint, new.publish.sndhwm, self._stale_after_s(new))
+            pub = self._publisher(new)
         except PublishError:
             if old_pub is None:
                 raise
             old_pub.close()
             self.pub = None
             try:
-                pub = Publisher(new.publish.endpoint, new.publish.sndhwm, self._stale_after_s(new))
+                pub = self._publisher(new)
             except PublishError:
-                stale = self._stale_after_s(old)
-                self.pub = Publisher(old.publish.endpoint, old.publish.sndhwm, stale)
+                self.pub = self._publisher(old)
                 self.pub.start_waker(self._wake_loop)
                 raise
             old_pub = None
@@ -864,6 +863,12 @@ class Daemon:
         pub.start_waker(self._wake_loop)
         if old_pub is not None:
             old_pub.close()
+
+    def _publisher(self, cfg: Config) -> Publisher:
+        """A publisher bound as ``cfg`` says, CURVE included (a rebind that left it
+        out would publish in clear text)."""
+        p = cfg.publish
+        return Publisher(p.endpoint, p.sndhwm, self._stale_after_s(cfg), curve=p.curve)
 
     @staticmethod
     def _stale_after_s(cfg: Config) -> float:
@@ -908,7 +913,8 @@ class Daemon:
                 log.error("SIGHUP: keeping the running configuration: %s", exc)
                 self.notifier.ready()
                 return
-        if new.publish.endpoint != old.publish.endpoint or new.publish.sndhwm != old.publish.sndhwm:
+        rebind = ("endpoint", "sndhwm", "curve")
+        if any(getattr(new.publish, k) != getattr(old.publish, k) for k in rebind):
             try:
                 self._rebind(new, old)
             except PublishError as exc:

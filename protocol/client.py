@@ -9,6 +9,19 @@
         except StaleStream:
             stop_the_robot()  # the daemon has gone quiet: act on nothing old
 
+Over a LAN, a daemon configured with CURVE (docs/security.md) is reached with the
+server's public key and this client's key pair (``lunad keys`` makes both)::
+
+    Subscriber("tcp://192.168.1.10:7781", sensor="front",
+               curve_server_key="/etc/robot/curve/server.key",
+               curve_client_key="/etc/robot/curve/robot.key_secret")
+
+The stream is then encrypted, and only a publisher holding the secret key of
+``curve_server_key`` can be read: any other one fails the handshake and nothing
+arrives. The daemon admits the client only if its public key (``robot.key``) is in its
+client directory; a client it refused does not retry, so a key added later needs a new
+``Subscriber``.
+
 ZeroMQ reconnects a SUB socket by itself, so a daemon restart needs nothing from the
 caller. The subscriber applies the contract's rules:
 
@@ -28,6 +41,8 @@ caller. The subscriber applies the contract's rules:
 from __future__ import annotations
 
 import math
+import os
+import struct
 import time
 from collections import deque
 from collections.abc import Iterable, Iterator
@@ -35,6 +50,8 @@ from types import TracebackType
 
 import zmq
 from pydantic import ValidationError
+from zmq.auth import load_certificate
+from zmq.utils import z85
 
 from lunad.protocol.messages import (
     HEALTH_TOPIC,
@@ -51,7 +68,14 @@ RATE_WINDOW_S = 2.0
 """Messages over this many seconds make ``rate_hz`` (our choice: steady, yet it follows a
 change of ``--publish-hz`` within a couple of seconds)."""
 
+Z85_KEY_CHARS = 40  # a CURVE key (32 bytes) written in Z85
+
 __all__ = ["HealthMessage", "RangeMessage", "StaleStream", "Subscriber"]
+
+KeyText = str | bytes
+"""A CURVE key as 40 Z85 characters."""
+KeyPath = str | os.PathLike[str]
+"""A ZPL key file, as ``zmq.auth.create_certificates`` and ``lunad keys`` write it."""
 
 
 class StaleStream(TimeoutError):
@@ -77,6 +101,15 @@ class Subscriber:
         stale_after_s: iterating raises :class:`StaleStream` after this many seconds
             without a message; None waits for ever.
         context: a ZeroMQ context to share; by default the process-wide instance.
+        curve_server_key: connect with CURVE to a daemon with this public key: 40 Z85
+            characters, or the path of its ``.key`` file (``server.key``). Given with
+            ``curve_client_key``, or neither.
+        curve_client_key: this client's key pair: the path of its ``.key_secret``
+            file, or a (public, secret) pair of Z85 keys.
+
+    Raises:
+        ValueError: a bad ``stale_after_s``, or a CURVE key that is not one (the message
+            says which argument and why).
     """
 
     def __init__(
@@ -86,9 +119,19 @@ class Subscriber:
         kinds: Iterable[str] = (RANGE_TOPIC, HEALTH_TOPIC),
         stale_after_s: float | None = None,
         context: zmq.Context[zmq.Socket[bytes]] | None = None,
+        curve_server_key: KeyText | KeyPath | None = None,
+        curve_client_key: KeyPath | tuple[KeyText, KeyText] | None = None,
     ) -> None:
         if stale_after_s is not None and not stale_after_s > 0:
             raise ValueError(f"stale_after_s must be above 0 seconds, got {stale_after_s!r}")
+        if (curve_server_key is None) != (curve_client_key is None):
+            raise ValueError(
+                "curve_server_key and curve_client_key go together: CURVE needs the "
+                "server's public key and this client's key pair"
+            )
+        curve = None
+        if curve_server_key is not None and curve_client_key is not None:
+            curve = (_server_key(curve_server_key), *_client_keys(curve_client_key))
         self.endpoint = endpoint
         self.sensor = sensor
         self.stale_after_s = stale_after_s
@@ -107,6 +150,11 @@ class Subscriber:
         self._sock.setsockopt(zmq.LINGER, 0)
         self._sock.setsockopt(zmq.RECONNECT_IVL, RECONNECT_IVL_MS)
         self._sock.setsockopt(zmq.RECONNECT_IVL_MAX, RECONNECT_IVL_MAX_MS)
+        if curve is not None:
+            server, public, secret = curve
+            self._sock.setsockopt(zmq.CURVE_SERVERKEY, server)
+            self._sock.setsockopt(zmq.CURVE_PUBLICKEY, public)
+            self._sock.setsockopt(zmq.CURVE_SECRETKEY, secret)
         self._prefixes: list[bytes] = []
         for kind in kinds:
             prefix = f"{kind}/{sensor}/" if sensor else f"{kind}/"
@@ -227,3 +275,59 @@ class Subscriber:
         tb: TracebackType | None,
     ) -> None:
         self.close()
+
+
+def _z85_key(value: KeyText) -> bytes | None:
+    """``value`` as the 40 ASCII bytes of a Z85 CURVE key, or None if it is not one."""
+    text = value.encode("ascii", "replace") if isinstance(value, str) else bytes(value)
+    if len(text) != Z85_KEY_CHARS:
+        return None
+    try:
+        z85.decode(text)
+    except (ValueError, KeyError, struct.error):  # not Z85, or a group above 2**32
+        return None
+    return text
+
+
+def _load(path: KeyPath, argument: str) -> tuple[bytes, bytes | None]:
+    """The (public, secret) Z85 keys of the key file ``path``, checked."""
+    if not os.path.isfile(path):
+        raise ValueError(f"{argument}: {os.fspath(path)!r} is not a key file (no such file)")
+    try:
+        public, secret = load_certificate(path)
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{argument}: {os.fspath(path)!r} is not a key file: {exc}") from None
+    if _z85_key(public) is None or (secret is not None and _z85_key(secret) is None):
+        raise ValueError(
+            f"{argument}: {os.fspath(path)!r} holds a key that is not 40 Z85 characters"
+        )
+    return public, secret
+
+
+def _server_key(value: KeyText | KeyPath) -> bytes:
+    """The server's public key from 40 Z85 characters or a ``.key`` file's path (a
+    ``pathlib.Path`` is always a path)."""
+    if isinstance(value, (str, bytes)) and (key := _z85_key(value)) is not None:
+        return key
+    if isinstance(value, bytes):
+        raise ValueError("curve_server_key: bytes must be 40 Z85 characters")
+    return _load(value, "curve_server_key")[0]
+
+
+def _client_keys(value: KeyPath | tuple[KeyText, KeyText]) -> tuple[bytes, bytes]:
+    """This client's (public, secret) keys from a ``.key_secret`` file's path or a pair,
+    checked to belong together: a mismatched pair fails the handshake without a word."""
+    if isinstance(value, tuple):
+        public, secret = (_z85_key(v) for v in value)
+        if public is None or secret is None:
+            raise ValueError("curve_client_key: a (public, secret) pair of 40 Z85 characters each")
+    else:
+        public, secret = _load(value, "curve_client_key")
+        if secret is None:
+            raise ValueError(
+                f"curve_client_key: {os.fspath(value)!r} holds no secret key (the client's "
+                "secret file ends in .key_secret)"
+            )
+    if zmq.curve_public(secret) != public:
+        raise ValueError("curve_client_key: the public key is not the secret key's")
+    return public, secret

@@ -15,7 +15,12 @@
 #   /etc/sysusers.d/lunad.conf         the "lunad" system user (created right away)
 #   /etc/modules-load.d/lunad.conf     USB-serial and i2c-dev drivers at boot
 #   /etc/lunad/lunad.toml.example      every config key, commented (refreshed)
-# It never touches /etc/lunad/*.toml: your sensor configs are yours.
+#   /etc/lunad/curve/                  CURVE keys for TCP endpoints (docs/security.md):
+#                                      server.key, server.key_secret (lunad, 0600),
+#                                      made once on a real install (not with DESTDIR),
+#                                      and clients/ for the client public keys
+# It never touches /etc/lunad/*.toml: your sensor configs are yours, and keeps
+# existing keys: clients pin the server's public key.
 #
 # uninstall stops and disables every lunad@ instance and removes all of the
 # above, but keeps /etc/lunad/*.toml (PURGE=1 removes /etc/lunad too) and the
@@ -115,6 +120,27 @@ EOF
     fi
 }
 
+install_curve() {
+    curve=$CONF_DIR/curve
+    install -d -m 0755 "$curve" "$curve/clients"
+    # A staged tree may be copied to many machines: each must make its own pair.
+    [ -z "$DESTDIR" ] || return 0
+    if [ -e "$curve/server.key_secret" ] || [ -e "$curve/server.key" ]; then
+        return 0
+    fi
+    if [ ! -x "$VENV/bin/lunad" ]; then
+        say "not making CURVE keys: $PREFIX/venv/bin/lunad is missing"
+        return 0
+    fi
+    if ! out=$("$VENV/bin/lunad" keys server "$curve"); then
+        say "could not make the CURVE server keys in /etc/lunad/curve (see above)"
+        return 0
+    fi
+    chown lunad:lunad "$curve/server.key_secret"
+    key=$(printf '%s\n' "$out" | sed -n 's/^public key: //p')
+    say "made the CURVE server key pair in /etc/lunad/curve (public key $key)"
+}
+
 do_install() {
     need_root
     # PREFIX is ours alone: uninstall removes what is in it. A directory that exists,
@@ -147,6 +173,7 @@ do_install() {
             die "systemd-sysusers is missing: cannot create the lunad user"
         fi
     fi
+    install_curve
     if live_systemd; then
         systemctl start systemd-modules-load.service || true
         systemctl daemon-reload
@@ -169,6 +196,9 @@ connect: add the user your robot code runs as to the group (it takes effect at
 its next login):
 
   sudo usermod -aG lunad <user>
+
+To publish on a LAN instead, encrypted and for listed clients only (CURVE), see
+$PREFIX/share/security.md: the server keys are in /etc/lunad/curve.
 
 Check it with: systemctl status lunad@front ; journalctl -u lunad@front -f
 Guide: $PREFIX/share/raspberry-pi.md
@@ -206,6 +236,8 @@ do_uninstall() {
     if [ "${PURGE:-0}" = 1 ]; then
         rm -rf "$CONF_DIR"
     elif [ -d "$CONF_DIR" ]; then
+        # Keys are kept like configs; the directories go if install's are empty.
+        rmdir "$CONF_DIR/curve/clients" "$CONF_DIR/curve" 2>/dev/null || true
         rmdir "$CONF_DIR" 2>/dev/null ||
             say "kept your configs in /etc/lunad (PURGE=1 removes them)"
     fi
