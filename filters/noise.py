@@ -30,6 +30,19 @@ and the slow one starts again from the fast one. The slow one is fed only while 
 fast one says the noise is observable (below): a still, close target in between
 leaves it where the last observable target left it.
 
+A scene is not always smooth: a beam that crosses a cluttered roadside, foliage or a
+grille sees the range change from reading to reading by more than the noise, and
+those second differences are not light. They come and go, while the light's noise is
+there all the time, so the light is read from the noise *floor*: minimum statistics
+(R. Martin, "Noise power spectral density estimation based on optimal smoothing and
+minimum statistics", IEEE Trans. Speech Audio Process. 9(5), 2001), the minimum of
+the fast average over the last ``MIN_STATS_SPANS`` spans of ``noise_frames`` readings,
+divided by its bias ``MIN_STATS_BIAS``. The slow average learns only while the fast
+one is near that floor (``MIN_STATS_NEAR``); it restarts from the fast one when the
+light falls (the fast one below it by ``noise_jump_ratio``) and from the floor when
+even the floor rises that far above it (the light rose). The reading variance keeps
+the fast average, clutter included: to the tracker, clutter is noise.
+
 A reading that does not feed the filter (weak, saturated, no distance) breaks the
 chain; up to ``MAX_GAP_FRAMES - 1`` missing frames are bridged with the divided
 difference (z - z1) / g1 - (z1 - z2) / g2 over frame counts g1 and g2, normalised to
@@ -48,6 +61,20 @@ tell apart from the light: a box at 1.21 m under 300 lux reads several klux ther
 from __future__ import annotations
 
 import math
+
+MIN_STATS_SPANS = 4
+"""The noise floor is the fast average's minimum over this many spans of
+``noise_frames`` readings (100 readings, 0.4 s at 250 Hz, by default): long enough that
+a stretch of clutter rarely covers all of it, short enough to follow a light that
+rises within half a second."""
+MIN_STATS_BIAS = 0.81
+"""E[floor] / E[fast average] for white Gaussian readings: the minimum of a scattered
+average lies below its mean. Measured by simulating 400,000 readings through the fast
+average (25 readings, clip 2) and the floor (4 spans of 25): 0.807. It depends on the
+ratio of the window to the average, which the settings keep fixed, not on the noise."""
+MIN_STATS_NEAR = 1.3
+"""The slow average learns a reading only while the fast one is within this factor of
+the floor's mean: about two of the fast average's own scatter (14 % of its mean)."""
 
 MAX_GAP_FRAMES = 3
 """Frame counts between the readings of one second difference: 1 (consecutive) up to

@@ -43,7 +43,14 @@ from math import sqrt
 
 from lunad.filters.config import AMP_AMBIENT, AMP_SATURATED, FilterConfig
 from lunad.filters.estimate import Estimate, Reason, Status, Zone
-from lunad.filters.noise import GAP_NORMALISERS, MAX_GAP_FRAMES, winsorised_abs_mean
+from lunad.filters.noise import (
+    GAP_NORMALISERS,
+    MAX_GAP_FRAMES,
+    MIN_STATS_BIAS,
+    MIN_STATS_NEAR,
+    MIN_STATS_SPANS,
+    winsorised_abs_mean,
+)
 from lunad.filters.policy import band_edge, first_amp_at_least
 from lunad.filters.zone import ZoneClassifier
 
@@ -76,6 +83,8 @@ _OK = Status.OK
 _DEGRADED = Status.DEGRADED
 _DROPOUT = Status.DROPOUT
 _UNRELIABLE = Zone.UNRELIABLE
+_INF = float("inf")
+_INV_MIN_STATS_BIAS = 1.0 / MIN_STATS_BIAS
 _new = tuple.__new__
 """Builds an ``Estimate`` from a tuple without the ``NamedTuple``'s generated Python
 ``__new__``: one C call instead of a Python frame, on every frame."""
@@ -113,6 +122,7 @@ class RangeFilter:
         "_kA",
         "_last_accept_ns",
         "_last_t_ns",
+        "_learn_below",
         "_lux_enter",
         "_lux_exit",
         "_m1",
@@ -138,6 +148,11 @@ class RangeFilter:
         "_run_sum",
         "_sigma0",
         "_slow_keep",
+        "_span_frames",
+        "_span_i",
+        "_span_k",
+        "_span_min",
+        "_span_mins",
         "_stale_ns",
         "_thr2",
         "_v0var",
@@ -211,6 +226,7 @@ class RangeFilter:
         self._kA = 1.0 / (6.0 * m1 * m1)
         self._fast_keep = 1.0 / c.noise_frames
         self._slow_keep = 1.0 / c.noise_slow_frames
+        self._span_frames = c.noise_frames
         self._jump = c.noise_jump_ratio
         self._obs2 = c.lux_observable_sigma_m * c.lux_observable_sigma_m
         self._c2_floor = 0.01 * c.sigma0_m * c.sigma0_m
@@ -234,6 +250,10 @@ class RangeFilter:
         c0 = c.sigma0_m + c.k_m_per_lux * c.lux_init
         self.c2 = c0 * c0
         self.noise_fast = self.noise_slow = 0.0
+        self._span_mins = [_INF] * MIN_STATS_SPANS
+        self._span_min = self._learn_below = _INF  # no floor yet: learn everything
+        self._span_i = 0
+        self._span_k = self.config.noise_frames
         self.lux: float | None = None
         self._z1: float | None = None
         self._z2: float | None = None
@@ -330,18 +350,30 @@ class RangeFilter:
                         y = lim
                     fast += self._fast_keep * (y - fast)
                     self.noise_fast = fast
-                    c2 = fast * fast * self._kA - self._q_m2 * s2
+                    qs2 = self._q_m2 * s2
+                    c2 = fast * fast * self._kA - qs2
                     self.c2 = c2 if c2 > self._c2_floor else self._c2_floor
-                    if c2 < self._obs2 * s2:  # below the output step: not observable,
+                    obs = self._obs2 * s2
+                    if c2 < obs:  # below the output step: not observable,
                         self.lux = None  # and the slow average keeps what it last saw
                     else:
+                        # Minimum statistics (noise.py): the fast average's minimum over
+                        # the last MIN_STATS_SPANS spans is the floor clutter cannot lift.
+                        if fast < self._span_min:
+                            self._span_min = fast
                         slow = self.noise_slow
-                        slow += self._slow_keep * (y - slow)
-                        if fast > self._jump * slow or slow > self._jump * fast:
-                            slow = fast  # the light changed: start the slow average again
+                        if fast <= self._learn_below:  # nothing on top of the noise
+                            slow += self._slow_keep * (y - slow)
+                        if slow > self._jump * fast:  # the light fell
+                            slow = fast
+                        k = self._span_k - 1
+                        if k:
+                            self._span_k = k
+                        else:
+                            slow = self._end_span(slow)
                         self.noise_slow = slow
-                        c2 = slow * slow * self._kA - self._q_m2 * s2
-                        if c2 < self._obs2 * s2:
+                        c2 = slow * slow * self._kA - qs2
+                        if c2 < obs:
                             self.lux = None
                         else:
                             lux = (sqrt(c2) - self._sigma0) * self._inv_k
@@ -491,6 +523,21 @@ class RangeFilter:
         if t - self._last_accept_ns > self._stale_ns:
             reasons = (*reasons, Reason.STALE) if reasons else _STALE
         return _new(Estimate, (None, None, self.lux, s, _DROPOUT, reasons, _UNRELIABLE))
+
+    def _end_span(self, slow: float) -> float:
+        """Close a span of the minimum statistics (every ``noise_frames`` observable
+        readings): the floor becomes the least span minimum of the last
+        ``MIN_STATS_SPANS``. Returns the slow average, restarted at the floor's mean
+        when even the floor rose ``noise_jump_ratio`` above it (the light rose)."""
+        i = self._span_i
+        mins = self._span_mins
+        mins[i] = self._span_min
+        self._span_i = i + 1 if i + 1 < MIN_STATS_SPANS else 0
+        self._span_min = _INF
+        self._span_k = self._span_frames
+        floor = min(mins) * _INV_MIN_STATS_BIAS
+        self._learn_below = MIN_STATS_NEAR * floor
+        return floor if floor > self._jump * slow else slow
 
     def _start(self, z_m: float, r_m2: float) -> None:
         """Begin a track at ``z_m`` (variance ``r_m2``) with unknown speed."""
