@@ -1,24 +1,46 @@
 """The publisher against peers that are not honest subscribers.
 
-Each test runs a real ``Publisher`` in this process with a loop thread that drives it as
-``lunad serve`` does (a ``range`` message every 4 ms, ``pump`` when ``pending`` is set,
-the waker waking it), a real ZeroMQ SUB as the honest subscriber, and the attacker in a
-child process: this file run as a script, speaking ZMTP 3.0 NULL on a raw socket, or a
-``zmq.XSUB``. Every test asserts what an honest subscriber and the daemon must keep:
-every message published after the subscriber joined arrives, with no ``seq`` gap; each
-cached message reaches it at most a few times; no ``pump`` call takes long; the
-process's resident memory grows by less than ``RSS_LIMIT_MIB``.
+Two sets of tests play the same attacks. The attacker always runs in a child process:
+this file run as a script, speaking ZMTP 3.0 NULL on a raw socket, or a ``zmq.XSUB``.
+
+- In this process: a real ``Publisher`` with a loop thread that drives it as ``lunad
+  serve`` does (a ``range`` message every 4 ms, ``pump`` when ``pending`` is set, the
+  waker waking it) and a real ZeroMQ SUB as the honest subscriber. They assert the
+  mechanisms, from the publisher's own counters: every message published after the
+  subscriber joined arrives, with no ``seq`` gap; each cached message reaches it at
+  most a few times; no ``pump`` call takes long; the process's resident memory grows
+  by less than ``RSS_LIMIT_MIB``; the flood, cap and penalty counters moved.
+- Against the daemon (``test_lunad_serve_keeps_its_targets_under_attack``): a real
+  ``lunad serve`` subprocess reading the virtual sensor on a pty at 250 Hz, with a
+  ``NOTIFY_SOCKET`` and ``WATCHDOG_USEC`` as systemd gives it. They assert issue #21's
+  targets from outside, as an operator would see them: every frame the sensor sent
+  reaches the honest subscriber with no ``seq`` gap, the daemon's VmRSS grows by less
+  than ``RSS_LIMIT_MIB``, SIGTERM at the end of the attack (the attacker still at it)
+  ends it within ``STOP_LIMIT_S``, and watchdog pings are never more than
+  ``WATCHDOG_GAP_LIMIT_S`` apart.
+
+Environment:
+
+- ``LUNAD_ATTACK_S``: how long each attack plays, seconds (default 3, to keep CI
+  short; issue #21 asks for 10).
+- ``LUNAD_ATTACK_REPORT``: a file to which each daemon test appends its figures as
+  one JSON line (``DaemonFigures``), before asserting, so a failed target is reported
+  too. A report, not an assertion.
 
 Run by hand, ``python tests/test_publisher_attacks.py KIND ENDPOINT SECONDS [ARG
 [SOURCE_IP]]`` attacks an endpoint (``KIND`` is one of ``ATTACKS``) and prints what it
-did as JSON.
+did as JSON; SIGTERM ends it early, still printing.
 """
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
+import select
+import signal
 import socket
+import struct
 import subprocess
 import sys
 import threading
@@ -27,12 +49,15 @@ from collections import Counter
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import pytest
 import zmq
 
 from lunad.daemon import publisher as publisher_module
 from lunad.daemon.publisher import Publisher
+from lunad.sim.physics import Truth
+from lunad.sim.pty_device import PtyDevice
 
 RANGE = b"range/tfluna"
 HEALTH = b"health/tfluna"
@@ -40,8 +65,27 @@ PERIOD_S = 0.004  # one range message every 4 ms, the TF-Luna's 250 Hz
 HEALTH_EVERY_S = 30.0
 """The loop's health interval, seconds: longer than a test, so a health message that
 reaches a subscriber after the first can only be the last-value cache's."""
-ATTACK_S = 3.0  # how long each attacker runs
-RSS_LIMIT_MIB = 20.0  # growth of this process's VmRSS over an attack
+ATTACK_S_ENV = "LUNAD_ATTACK_S"
+REPORT_ENV = "LUNAD_ATTACK_REPORT"
+
+
+def _attack_seconds() -> float:
+    """``LUNAD_ATTACK_S``, else 3 s: long enough for every mechanism to act (the flood
+    penalty is 1 s, the replay interval 0.5 s), short enough for CI. At least 1 s, so
+    that the attacker child is past its imports, and its SIGTERM handler, when the
+    daemon tests stop it."""
+    text = os.environ.get(ATTACK_S_ENV, "3")
+    try:
+        seconds = float(text)
+    except ValueError:
+        raise ValueError(f"{ATTACK_S_ENV}={text!r} is not a number of seconds") from None
+    if not 1.0 <= seconds <= 600.0:
+        raise ValueError(f"{ATTACK_S_ENV}={text!r}: give 1 to 600 seconds")
+    return seconds
+
+
+ATTACK_S = _attack_seconds()  # how long each attacker runs
+RSS_LIMIT_MIB = 20.0  # growth of VmRSS (this process's, or the daemon's) over an attack
 PUMP_LIMIT_S = 0.05
 """Longest one ``pump`` may take, seconds: at most a few milliseconds of work, with room
 for a preemption on a loaded machine."""
@@ -57,13 +101,25 @@ ATTACKER_IP = "127.0.0.2"
 (the honest subscribers connect from 127.0.0.1)."""
 
 
-def _rss_mib() -> float:
-    """This process's resident set size, MiB."""
-    with open("/proc/self/status") as f:
-        for line in f:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024
-    raise AssertionError("no VmRSS")
+def _rss_mib(pid: int | str = "self") -> float:
+    """The resident set size of process ``pid`` (this one by default), MiB."""
+    rss = _rss_of(pid)
+    if rss is None:
+        raise AssertionError(f"no VmRSS for process {pid}")
+    return rss
+
+
+def _rss_of(pid: int | str) -> float | None:
+    """The resident set size of ``pid``, MiB, or None once it has exited (a zombie's
+    status has no VmRSS line)."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024
+    except FileNotFoundError:
+        pass
+    return None
 
 
 def _open_fds() -> int:
@@ -163,7 +219,7 @@ class Honest:
             except zmq.Again:
                 return got
             got = True
-            if topic == RANGE:
+            if topic.startswith(b"range/"):  # the daemon's topics end in "/"
                 self.seqs.append(json.loads(payload)["seq"])
             else:
                 self.health.append(payload)
@@ -421,9 +477,348 @@ def test_subscribers_joining_inside_the_replay_interval(tcp_endpoint: str) -> No
     assert [len(s.health) for s in subs] == [2, 1, 1]
 
 
+# -- the same attacks against `lunad serve` --------------------------------------------
+
+SENSOR_HZ = 250  # the TF-Luna's fastest rate, which issue #21's targets are set for
+STOP_LIMIT_S = 2.0
+"""SIGTERM to exit, seconds: systemd's stop, or a restart, must not wait on peers."""
+WATCHDOG_USEC = 1_000_000
+"""Given to the daemon as systemd would for ``WatchdogSec=1``: it pings every 0.5 s."""
+WATCHDOG_GAP_LIMIT_S = 1.0
+"""Longest time between two pings, seconds: past it, a ``WatchdogSec=1`` unit would be
+killed. The unit has ``WatchdogSec=10``; 1 s is issue #21's target."""
+STOP_WAIT_S = 10.0  # how long to wait for the exit before killing (the limit is asserted)
+DRAIN_TIMEOUT_S = 15.0
+"""After the sensor went quiet, how long the honest subscriber may take to get the last
+frame: a shared machine can stall the daemon or this process for seconds."""
+ATTACKER_SPARE_S = 60.0
+"""The attacker is started for ``ATTACK_S`` plus this, and stopped by SIGTERM once the
+daemon has exited, so the attack lasts through the drain and the daemon's stop."""
+SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)  # Linux; Python does not export it
+_TIMESPEC = struct.Struct("@ll")  # struct timespec: seconds, nanoseconds
+
+
+@dataclass(frozen=True)
+class Attack:
+    """One attack as the daemon tests play it: ``kind`` and ``arg`` for the attacker
+    child, from ``source_ip`` (TCP), on a ``tcp`` or ``ipc`` endpoint."""
+
+    name: str
+    kind: str
+    arg: str = ""
+    source_ip: str = ATTACKER_IP
+    transport: str = "tcp"
+
+
+DAEMON_ATTACKS = (
+    Attack("xsub", "xsub"),
+    Attack("subscribe", "subscribe"),
+    Attack("junk-ipc", "junk", transport="ipc"),
+    Attack("big-1MB", "big", "1000000"),
+    Attack("distinct-20", "distinct", "20"),
+    Attack("distinct-120", "distinct", "120"),
+    Attack("trickle-2000", "trickle", "2000"),
+    Attack("connections-200", "connections", "200"),
+    Attack("subscribe-own-address", "subscribe", source_ip="127.0.0.1"),
+)
+"""The attacks of the in-process tests above, one each."""
+
+
+@dataclass
+class DaemonFigures:
+    """What one attack did to ``lunad serve`` and its honest subscriber: issue #21's
+    closing-note figures, one JSON line each in ``LUNAD_ATTACK_REPORT``."""
+
+    attack: str
+    transport: str
+    attack_s: float  # LUNAD_ATTACK_S: the window before the sensor goes quiet
+    duration_s: float = 0.0  # the attacker's own time, start to its SIGTERM
+    sensor_frames: int = 0  # sent by the sensor from the honest subscriber's first frame on
+    sensor_frames_attack: int = 0  # of which sent during the attack window
+    received: int = 0  # distinct seqs the honest subscriber got, of sensor_frames
+    seq_missing: int = 0
+    seq_gaps: int = 0  # runs of missing seqs
+    duplicates: int = 0  # range messages received more than once (cache replays)
+    most_repeats: int = 0  # most times one range message arrived
+    rss_before_mib: float = 0.0
+    rss_after_mib: float = 0.0  # at the end, just before SIGTERM
+    rss_max_mib: float = 0.0  # sampled about every 20 ms
+    rss_growth_mib: float = 0.0  # max less before
+    sigterm_exit_s: float | None = None
+    exit_code: int | None = None
+    watchdog_pings: int = 0  # from the last one before the attack to SIGTERM
+    watchdog_max_s: float | None = None  # longest time without a ping, up to SIGTERM
+    aborted: str = ""
+    attacker: dict[str, int] = field(default_factory=dict)
+
+    def line(self) -> str:
+        return " ".join(f"{k}={v}" for k, v in vars(self).items())
+
+
+class NotifyListener:
+    """The daemon's ``NOTIFY_SOCKET``: a datagram socket bound in ``tmp_path``, as
+    systemd binds it. Each datagram keeps the kernel's receive time
+    (``SO_TIMESTAMPNS``, the daemon's send time on a unix socket), so a stall in this
+    busy process cannot stretch, or shrink, the gaps measured between pings."""
+
+    def __init__(self, path: Path) -> None:
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self.sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+        self.sock.bind(str(path))
+        self.sock.setblocking(False)
+        self.path = path
+        self.got: list[tuple[float, str]] = []  # (time.time() of the send, datagram)
+        self.unstamped = 0
+
+    def drain(self) -> None:
+        """Take every datagram waiting."""
+        while True:
+            try:
+                data, ancillary, _, _ = self.sock.recvmsg(4096, socket.CMSG_SPACE(_TIMESPEC.size))
+            except BlockingIOError:
+                return
+            stamp = None
+            for level, kind, cdata in ancillary:
+                if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS:
+                    sec, nsec = _TIMESPEC.unpack(cdata[: _TIMESPEC.size])
+                    stamp = sec + nsec / 1e9
+            if stamp is None:
+                self.unstamped += 1
+                stamp = time.time()
+            self.got.append((stamp, data.decode(errors="replace")))
+
+    def pings(self) -> list[float]:
+        return [t for t, m in self.got if m == "WATCHDOG=1"]
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+def _longest_silence(pings: list[float], start: float, end: float) -> tuple[int, float | None]:
+    """Pings from the last one before ``start`` to ``end``, and the longest time between
+    two of them or from the last to ``end`` (a loop that wedged just before ``end``
+    counts); None when there was no ping at all."""
+    before = [t for t in pings if t <= start]
+    inside = [t for t in pings if start < t <= end]
+    window = before[-1:] + inside
+    if not window:
+        return 0, None
+    gaps = [b - a for a, b in itertools.pairwise(window)] + [end - window[-1]]
+    return len(window), max(gaps)
+
+
+def _seq_runs(first: int, last: int, seqs: list[int]) -> tuple[int, int]:
+    """Missing seqs in ``first..last`` and the runs they form."""
+    got = set(seqs)
+    missing = [s for s in range(first, last + 1) if s not in got]
+    runs = sum(1 for a, b in itertools.pairwise([first - 2, *missing]) if b != a + 1)
+    return len(missing), runs
+
+
+def _report(fig: DaemonFigures) -> None:
+    """Append ``fig`` as one JSON line to ``LUNAD_ATTACK_REPORT``, when it is set."""
+    path = os.environ.get(REPORT_ENV)
+    if path:
+        with open(path, "a") as f:
+            f.write(json.dumps(vars(fig)) + "\n")
+
+
+def run_daemon_attack(
+    attack: Attack,
+    tmp_path: Path,
+    device: Callable[..., PtyDevice],
+    start_daemon: Callable[..., Any],
+) -> tuple[DaemonFigures, str]:
+    """Start the sensor and ``lunad serve``, join an honest subscriber, attack for
+    ``ATTACK_S``, then quiet the sensor, wait for its last frame, SIGTERM the daemon
+    while the attacker still runs, and stop the attacker. Returns the figures and the
+    daemon's log."""
+    fig = DaemonFigures(attack.name, attack.transport, ATTACK_S)
+    if attack.transport == "tcp":
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            endpoint = f"tcp://127.0.0.1:{s.getsockname()[1]}"
+    else:
+        endpoint = f"ipc://{tmp_path}/p.sock"
+    notify = NotifyListener(tmp_path / "notify.sock")
+    ctx: zmq.Context[zmq.Socket[bytes]] = zmq.Context()
+    honest: Honest | None = None
+    proc: subprocess.Popen[bytes] | None = None
+    d: Any = None
+    try:
+        # the daemon turns output on, as on a real sensor; the quiet room of test_serve
+        dev = device(rate_hz=SENSOR_HZ, truth=Truth(2.0, 0.8, 10.0, 100.0), output_enabled=False)
+        env = {"NOTIFY_SOCKET": str(notify.path), "WATCHDOG_USEC": str(WATCHDOG_USEC)}
+        d = start_daemon(
+            "--device", dev.path, "--publish", endpoint, "--rate", str(SENSOR_HZ), env=env
+        )
+        pid = d.proc.pid
+        honest = sub = Honest(ctx, endpoint, [b"range/"])
+        deadline = time.monotonic() + 30.0  # conftest's STARTUP_S: a loaded CI machine
+        while not honest.seqs or "READY=1" not in (m for _, m in notify.got):
+            assert d.proc.poll() is None, f"the daemon exited with {d.proc.returncode}"
+            assert time.monotonic() < deadline, "no READY=1 and first frame within 30 s"
+            honest.take(0.1)
+            notify.drain()
+        honest.take(0.3)
+        rss0 = fig.rss_max_mib = _rss_mib(pid)
+        fig.rss_before_mib = round(rss0, 1)
+        frames0 = dev.frames_sent
+        attack_wall = time.time()
+        proc = attacker = _attacker(
+            attack.kind, endpoint, ATTACK_S + ATTACKER_SPARE_S, attack.arg, attack.source_ip
+        )
+        assert attacker.stdout is not None
+        ready, _, _ = select.select([attacker.stdout], [], [], 10.0)
+        assert ready, "the attacker did not start within 10 s"
+        line = attacker.stdout.readline()
+        assert line == b"started\n", f"the attacker did not start: {line!r}"
+        started = time.monotonic()
+
+        def watch(until: float, done: Callable[[], bool]) -> bool:
+            """Read, sample and check until ``until`` or ``done()``; False on abort."""
+            while time.monotonic() < until and not done():
+                sub.take(0.02)
+                notify.drain()
+                rss = _rss_of(pid)
+                if rss is not None:
+                    fig.rss_max_mib = max(fig.rss_max_mib, rss)
+                if d.proc.poll() is not None:
+                    fig.aborted = f"the daemon exited with {d.proc.returncode} during the attack"
+                elif attacker.poll() is not None:
+                    fig.aborted = f"the attacker ended early: {attacker.returncode}"
+                elif fig.rss_max_mib - rss0 > RSS_ABORT_MIB:
+                    fig.aborted = f"the daemon grew by {fig.rss_max_mib - rss0:.0f} MiB"
+                if fig.aborted:
+                    return False
+            return True
+
+        if watch(started + ATTACK_S, lambda: False):
+            dev.pause(3600)
+            time.sleep(0.1)  # a frame the device was writing when paused
+            last = dev.frames_sent - 1
+            fig.sensor_frames_attack = dev.frames_sent - frames0
+            watch(time.monotonic() + DRAIN_TIMEOUT_S, lambda: max(sub.seqs) >= last)
+            rss1 = _rss_mib(pid)
+            fig.rss_max_mib = max(fig.rss_max_mib, rss1)
+            fig.rss_after_mib = round(rss1, 1)
+            first = honest.seqs[0]
+            fig.sensor_frames = last - first + 1
+            fig.received = len({s for s in honest.seqs if s <= last})
+            fig.seq_missing, fig.seq_gaps = _seq_runs(first, last, honest.seqs)
+            fig.duplicates = len(honest.seqs) - len(set(honest.seqs))
+            fig.most_repeats = max(Counter(honest.seqs).values())
+            if not fig.aborted:
+                term_wall = time.time()
+                t0 = time.monotonic()
+                d.proc.send_signal(signal.SIGTERM)
+                try:
+                    fig.exit_code = d.proc.wait(timeout=STOP_WAIT_S)
+                    fig.sigterm_exit_s = round(time.monotonic() - t0, 3)
+                except subprocess.TimeoutExpired:
+                    fig.aborted = f"the daemon had not exited {STOP_WAIT_S} s after SIGTERM"
+                notify.drain()
+                fig.watchdog_pings, longest = _longest_silence(
+                    notify.pings(), attack_wall, term_wall
+                )
+                fig.watchdog_max_s = None if longest is None else round(longest, 3)
+        fig.rss_max_mib = round(fig.rss_max_mib, 1)
+        fig.rss_growth_mib = round(fig.rss_max_mib - rss0, 1)
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=10)
+        fig.duration_s = round(time.monotonic() - started, 2)
+        if proc.returncode == 0 and out.strip():
+            fig.attacker = json.loads(out.decode().strip().splitlines()[-1])
+            fig.duration_s = fig.attacker.get("elapsed_ms", 0) / 1000
+        elif not fig.aborted:
+            fig.aborted = f"attacker exit {proc.returncode}: {err.decode()[-500:]}"
+        assert notify.unstamped == 0, "the kernel gave no SO_TIMESTAMPNS: gaps unmeasured"
+    finally:
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        if honest is not None:
+            honest.sock.close()
+        ctx.term()
+        notify.close()
+    log = d.log if d is not None else ""
+    if d is not None:
+        d.stop(signal.SIGKILL)  # closes its log; a no-op once it has exited
+    return fig, log
+
+
+@pytest.mark.parametrize("attack", DAEMON_ATTACKS, ids=lambda a: a.name)
+def test_lunad_serve_keeps_its_targets_under_attack(
+    attack: Attack,
+    tmp_path: Path,
+    device: Callable[..., PtyDevice],
+    start_daemon: Callable[..., Any],
+) -> None:
+    """Issue #21's targets, for each attack, on the real daemon at 250 Hz: the honest
+    subscriber (connected before the attack) gets every frame the sensor sent from its
+    first one on, with no ``seq`` gap; the daemon's VmRSS grows by under
+    ``RSS_LIMIT_MIB``; SIGTERM, sent while the attacker is still at it, ends the
+    daemon with code 0 within ``STOP_LIMIT_S``; watchdog pings are never more than
+    ``WATCHDOG_GAP_LIMIT_S`` apart."""
+    fig, log = run_daemon_attack(attack, tmp_path, device, start_daemon)
+    _report(fig)
+    print(fig.line())
+    ok = (
+        not fig.aborted
+        and fig.seq_missing == 0
+        and fig.rss_growth_mib < RSS_LIMIT_MIB
+        and fig.exit_code == 0
+        and fig.sigterm_exit_s is not None
+        and fig.sigterm_exit_s < STOP_LIMIT_S
+        and fig.watchdog_max_s is not None
+        and fig.watchdog_max_s <= WATCHDOG_GAP_LIMIT_S
+        and "stopped:" in log
+        and "Traceback" not in log
+    )
+    if not ok:
+        print("daemon log (end):\n" + log[-3000:])
+    assert not fig.aborted, fig.aborted
+    assert fig.attacker.get("connections", 0) + fig.attacker.get("frames", 0) > 0, (
+        f"the attacker did nothing: {fig.attacker}"
+    )
+    assert fig.sensor_frames_attack > ATTACK_S * SENSOR_HZ / 2, (
+        f"the sensor sent {fig.sensor_frames_attack} frames in {ATTACK_S} s: no 250 Hz stream"
+    )
+    assert fig.seq_missing == 0, (
+        f"{fig.seq_missing} of {fig.sensor_frames} frames never arrived ({fig.seq_gaps} gaps)"
+    )
+    replays_max = int(fig.duration_s / publisher_module.REPLAY_INTERVAL_S) + 3  # as above
+    assert fig.duplicates <= replays_max, f"{fig.duplicates} repeated range messages"
+    assert fig.most_repeats <= 2, f"one range message arrived {fig.most_repeats} times"
+    assert fig.rss_growth_mib < RSS_LIMIT_MIB, f"the daemon grew by {fig.rss_growth_mib} MiB"
+    assert fig.exit_code == 0, f"the daemon exited with {fig.exit_code} on SIGTERM"
+    assert "stopped:" in log and "Traceback" not in log, "not the orderly stop (log above)"
+    assert fig.sigterm_exit_s is not None and fig.sigterm_exit_s < STOP_LIMIT_S, (
+        f"SIGTERM to exit took {fig.sigterm_exit_s} s"
+    )
+    assert fig.watchdog_max_s is not None, "no watchdog ping at all"
+    assert fig.watchdog_max_s <= WATCHDOG_GAP_LIMIT_S, (
+        f"{fig.watchdog_max_s} s without a watchdog ping"
+    )
+
+
 # -- the attacker, run as a child process --------------------------------------------
 
 ATTACKS = ("xsub", "subscribe", "junk", "big", "distinct", "trickle", "connections")
+_stop_requested = False
+"""Set by SIGTERM: the daemon tests end an attack when they have stopped the daemon
+under it, not at a time fixed in advance."""
+
+
+def _request_stop(_signum: int, _frame: object) -> None:
+    global _stop_requested
+    _stop_requested = True
+
+
+def _before(until: float) -> bool:
+    """The attack goes on: ``until`` is ahead and no SIGTERM came."""
+    return not _stop_requested and time.monotonic() < until
 
 
 def _zmtp_hello() -> bytes:
@@ -476,7 +871,7 @@ class _Target:
 
     def flood(self, until: float, chunk: bytes, stats: Counter[str]) -> None:
         """Write ``chunk`` over and over, reconnecting whenever the publisher cuts us off."""
-        while time.monotonic() < until:
+        while _before(until):
             try:
                 s = self.connect()
             except OSError:
@@ -486,7 +881,7 @@ class _Target:
             stats["connections"] += 1
             s.settimeout(0.2)
             try:
-                while time.monotonic() < until:
+                while _before(until):
                     try:
                         stats["bytes"] += s.send(chunk)
                     except TimeoutError:
@@ -498,7 +893,8 @@ class _Target:
 
 
 def _attack(kind: str, target: _Target, seconds: float, arg: str) -> dict[str, int]:
-    until = time.monotonic() + seconds
+    started = time.monotonic()
+    until = started + seconds
     stats: Counter[str] = Counter()
     if kind == "xsub":
         ctx: zmq.Context[zmq.Socket[bytes]] = zmq.Context()
@@ -506,7 +902,7 @@ def _attack(kind: str, target: _Target, seconds: float, arg: str) -> dict[str, i
         x.setsockopt(zmq.LINGER, 0)
         x.connect(target.endpoint.replace("tcp://", f"tcp://{target.source_ip}:0;"))
         msgs = (b"\x01" + RANGE, b"\x01" + HEALTH)
-        while time.monotonic() < until:
+        while _before(until):
             for _ in range(1000):
                 x.send(msgs[stats["frames"] & 1])
                 stats["frames"] += 1
@@ -520,7 +916,7 @@ def _attack(kind: str, target: _Target, seconds: float, arg: str) -> dict[str, i
         target.flood(until, _frame(b"\x01" + b"x" * int(arg)), stats)
     elif kind == "distinct":
         topics = b"".join(_frame(b"\x01" + os.urandom(int(arg))) for _ in range(10_000))
-        while time.monotonic() < until:  # all 10 000 again on each new connection
+        while _before(until):  # all 10 000 again on each new connection
             try:
                 s = target.connect()
             except OSError:
@@ -530,10 +926,14 @@ def _attack(kind: str, target: _Target, seconds: float, arg: str) -> dict[str, i
             stats["connections"] += 1
             try:
                 s.sendall(topics)
-                s.settimeout(max(0.01, until - time.monotonic()))
-                while s.recv(65536):  # the topics stay subscribed while it is open
-                    pass
-                stats["cut"] += 1
+                s.settimeout(0.1)  # short, to see a SIGTERM soon
+                while _before(until):  # the topics stay subscribed while it is open
+                    try:
+                        if not s.recv(65536):
+                            stats["cut"] += 1
+                            break
+                    except TimeoutError:
+                        continue
             except TimeoutError:
                 pass
             except OSError:
@@ -542,7 +942,7 @@ def _attack(kind: str, target: _Target, seconds: float, arg: str) -> dict[str, i
                 s.close()
     elif kind == "trickle":  # distinct 120-byte topics, ARG a second, never behind
         rate = int(arg)
-        while time.monotonic() < until:
+        while _before(until):
             try:
                 s = target.connect()
             except OSError:
@@ -551,7 +951,7 @@ def _attack(kind: str, target: _Target, seconds: float, arg: str) -> dict[str, i
                 continue
             stats["connections"] += 1
             try:
-                while time.monotonic() < until:
+                while _before(until):
                     s.sendall(
                         b"".join(_frame(b"\x01" + os.urandom(120)) for _ in range(rate // 100))
                     )
@@ -569,7 +969,8 @@ def _attack(kind: str, target: _Target, seconds: float, arg: str) -> dict[str, i
             except OSError:
                 stats["refused"] += 1
         stats["connections"] = len(held)
-        time.sleep(max(0.0, until - time.monotonic()))
+        while _before(until):
+            time.sleep(0.05)
         for s in held:  # still open when a read would block; b"" or an error: cut
             s.setblocking(False)
             try:
@@ -582,10 +983,13 @@ def _attack(kind: str, target: _Target, seconds: float, arg: str) -> dict[str, i
             s.close()
     else:
         raise SystemExit(f"unknown attack {kind!r}; one of {', '.join(ATTACKS)}")
+    stats["elapsed_ms"] = round((time.monotonic() - started) * 1000)
     return dict(stats)
 
 
 if __name__ == "__main__":
+    signal.signal(signal.SIGTERM, _request_stop)
     args = [*sys.argv[1:], "", ATTACKER_IP][:5]
     kind, endpoint, seconds, arg, source_ip = args
+    print("started", flush=True)  # past the imports: the daemon tests time the attack from here
     print(json.dumps(_attack(kind, _Target(endpoint, source_ip), float(seconds), arg)))
