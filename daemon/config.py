@@ -142,7 +142,7 @@ class SourceSection(_Section):
     ``bus`` (a number for /dev/i2c-N, or ``sim`` for the simulated bus) at ``address``;
     ``replay`` plays the recording at ``path`` at ``speed`` x real time (``max``, stored
     as None: as fast as possible). ``record`` names a file that gets every byte read,
-    with its read time (``lunad serve --record``; see ``lunad.daemon.record``).
+    with its read time (``lunad serve --record``; see ``lunad.daemon.sources.recording``).
     ``rate_hz`` is [sensor] ``frame_rate_hz``, copied here by ``load_config`` for
     backends that pace themselves (I2C); it is not a key of its own.
     """

@@ -9,7 +9,9 @@ reconnect schedule, the last-value cache for late subscribers, the systemd watch
 (pinged only from this loop, so a wedged loop gets restarted) and SIGHUP reloads.
 
 A lost or absent device never stops the daemon: it reports ``reconnecting`` and
-retries with backoff (0.1 s doubling to 2 s) until the path works again.
+retries with backoff (0.1 s doubling to 2 s) until the path works again. Opening,
+configuring and reopening the source are in ``reconnect.py``, the SIGHUP reload in
+``reload.py``: both are base classes of ``Daemon`` and never run per frame.
 
 While bytes flow, an inner loop only reads, parses, filters and sends; it returns to
 the housekeeping at the next deadline or when a flag asks for it. ``t_unix_ns`` is
@@ -35,7 +37,6 @@ schedule); for both the clock only measures, and a disagreement is logged.
 from __future__ import annotations
 
 import logging
-import os
 import signal
 import time
 from collections.abc import Callable
@@ -44,19 +45,23 @@ from time import monotonic_ns
 from types import FrameType
 from typing import Any
 
-from lunad.daemon.config import Config, ConfigError, SourceSection, load_config
-from lunad.daemon.errors import EX_UNAVAILABLE, PublishError, SourceLostError, SourceOpenError
+from lunad.daemon.config import Config, ConfigError, SourceSection
+from lunad.daemon.errors import SourceLostError
 from lunad.daemon.frame_clock import FrameClock
 from lunad.daemon.health import Health, State
 from lunad.daemon.notify import Notifier
 from lunad.daemon.publisher import Publisher
-from lunad.daemon.record import Recorder
-from lunad.daemon.replay_source import check_replay
-from lunad.daemon.source import Chunk, Source, open_source
+from lunad.daemon.reconnect import (
+    BACKOFF_FIRST_S,
+    RETRY_LOG_EVERY_S,
+    VERSION_TIMEOUT_S,
+    Reconnecting,
+)
+from lunad.daemon.reload import Reloading
+from lunad.daemon.sources.base import Chunk, Source, open_source
+from lunad.daemon.sources.recording import Recorder
 from lunad.daemon.wakeup import Wakeup
 from lunad.filters import Estimate, RangeFilter, Status
-from lunad.protocol import commands
-from lunad.protocol.commands import CommandId, CommandReply, OutputFormat, decode_reply
 from lunad.protocol.frame import DATA_FRAME_LEN, Frame
 from lunad.protocol.messages import (
     encode_health,
@@ -72,15 +77,11 @@ log = logging.getLogger("lunad.serve")
 
 WAITING_AFTER_S = 1.0  # no bytes for this long: state waiting (the contract says within 2 s)
 WAITING_PERIODS = 1.5  # ... or this many frame periods, whichever is longer (1 Hz: 1.5 s)
-VERSION_TIMEOUT_S = 1.0  # a sensor that has not answered the version query by then is warned of
-BACKOFF_FIRST_S = 0.1
-BACKOFF_MAX_S = 2.0
 READ_SLICE_S = 5.0
 """Longest blocking read, seconds: a backstop only. Every timed duty (health, the
 watchdog, reopening, the waiting state, the version query, a stalled batch) is a
 deadline that ends the read sooner, and stop, reload and subscriptions wake it; so a
 silent sensor costs one wake-up per health message, no polling."""
-RETRY_LOG_EVERY_S = 60.0  # while a device stays absent, remind the log this often
 NS = 1_000_000_000
 _CONNECTED = State.CONNECTED
 _DROPOUT = Status.DROPOUT
@@ -91,15 +92,7 @@ def _hz(rate_hz: float) -> str:
     return f"{rate_hz:.4g}"
 
 
-def _same_file(a: str | os.PathLike[str], b: str | os.PathLike[str]) -> bool:
-    """True when both paths name one existing file (a symlink, ``./x`` and ``x``)."""
-    try:
-        return os.path.samefile(a, b)
-    except OSError:
-        return False
-
-
-class Daemon:
+class Daemon(Reconnecting, Reloading):
     """One sensor, one publisher, one loop.
 
     Args:
@@ -726,222 +719,3 @@ class Daemon:
             f"{msg.frames} frames, {msg.checksum_errors} checksum errors"
             + (f", sensor at {_hz(clock.sensor_hz)} Hz" if clock.differs else "")
         )
-
-    def _note_recovered_faults(self, src: Source, now: int) -> None:
-        """Put faults the source got over by itself (I2C NACKs retried, a hung sensor
-        rebooted) on health and in the log."""
-        count, last = src.recovered_faults
-        if count <= self._recovered_seen:
-            return
-        self._recovered_seen = count
-        note = f"{self._source_desc()}: recovered from {count} fault(s) since opening; last: {last}"
-        self.health.last_error = note
-        if now - self._last_recovered_log >= RETRY_LOG_EVERY_S * NS:
-            log.warning("%s", note)
-            self._last_recovered_log = now
-
-    def _try_open(self, now: int) -> None:
-        try:
-            self._source = self._open(self.cfg.source)
-        except SourceOpenError as exc:
-            self.health.last_error = str(exc)
-            self._open_failures += 1
-            if self._open_failures == 1:
-                log.warning("%s; retrying every %.1f s at most", exc, BACKOFF_MAX_S)
-            elif (now - self._last_retry_log) / NS >= RETRY_LOG_EVERY_S:
-                log.warning(
-                    "still cannot open %s after %d tries", self._source_desc(), self._open_failures
-                )
-                self._last_retry_log = now
-            self._next_open = now + int(self._backoff * NS)
-            self._backoff = min(self._backoff * 2, BACKOFF_MAX_S)
-            self._set_state(State.RECONNECTING, now)
-            return
-        failures = self._open_failures
-        log.info("opened %s%s", self._source, f" after {failures} failed tries" if failures else "")
-        rate = self._sensor_rate_hz()
-        if rate != self.cfg.sensor.frame_rate_hz:
-            log.info(
-                "%s: its sensor sent %d frames a second; timing frames by that, not by --rate %d",
-                self._source,
-                rate,
-                self.cfg.sensor.frame_rate_hz,
-            )
-        # a new port may hold another sensor, or one that takes the rate command now
-        self._clock = FrameClock(rate, follow=self.cfg.source.kind == "serial")
-        self._set_frame_rate(rate)
-        self._open_failures = 0
-        self._recovered_seen = 0
-        self._backoff = BACKOFF_FIRST_S
-        self._last_bytes = now
-        self._next_publish = 0  # the first read's frames go out: its clock may be a replay's
-        self.health.firmware = None  # until this sensor answers: the port may have another
-        self.health.serial = None
-        self._set_state(State.WAITING, now)
-        self._version_deadline = self._configure(now)
-
-    def _lost(self, exc: SourceLostError) -> None:
-        log.warning("lost %s: %s; reconnecting", self._source_desc(), exc)
-        self.health.last_error = str(exc)
-        self._drop_source()
-        now = time.monotonic_ns()
-        self._next_open = now + int(BACKOFF_FIRST_S * NS)
-        self._backoff = BACKOFF_FIRST_S * 2
-        self._set_state(State.RECONNECTING, now)
-
-    def _on_reply(self, reply: CommandReply) -> None:
-        value = decode_reply(reply)
-        if reply.cmd_id == CommandId.GET_VERSION:
-            self.health.firmware = str(value)
-            log.info("sensor firmware %s", value)
-        elif reply.cmd_id == CommandId.SAMPLE_FREQ:
-            wanted = self._sensor_rate_hz()  # a replay's: the rate its recording was made at
-            if value != wanted:
-                log.warning("sensor reports frame rate %s Hz, asked for %d Hz", value, wanted)
-            else:
-                log.info("frame rate %s Hz", value)
-        elif reply.cmd_id == CommandId.OUTPUT_EN:
-            log.info("sensor output %s", "on" if value else "off")
-        elif reply.cmd_id == CommandId.READ_MANU_BIN:
-            self.health.serial = str(value).strip("\x00 ") or None
-            log.info("sensor serial number %s", self.health.serial)
-        elif reply.cmd_id == CommandId.OUTPUT_FORMAT:
-            if value is not OutputFormat.CM:  # the parser reads centimetres regardless
-                log.warning("sensor reports output format %r, asked for centimetres", value)
-        else:
-            log.debug("reply to command %#04x: %r", reply.cmd_id, value)
-
-    def _configure(self, now: int) -> int | None:
-        """Ask for the firmware version, set rate and output; returns the reply deadline."""
-        src = self._source
-        if src is None or not self.cfg.sensor.configure or self.cfg.source.kind == "replay":
-            return None
-        try:
-            src.write(commands.startup(self.cfg.sensor.frame_rate_hz))
-        except SourceLostError as exc:
-            log.warning("cannot configure the sensor: %s", exc)
-            return None
-        return now + int(VERSION_TIMEOUT_S * NS)
-
-    def _drop_source(self) -> None:
-        src, self._source = self._source, None
-        if src is not None:
-            src.close()
-        self.parser.reset()
-        self.filter.reset()
-        self._unsent = None
-
-    def _rebind(self, new: Config, old: Config) -> None:
-        """Publish on ``new``'s endpoint and high-water mark from now on.
-
-        The new socket is bound before the old one closes, so subscribers of an
-        unchanged endpoint lose nothing. When that bind fails, the address may be the
-        running socket's own (the same TCP port with another ``sndhwm``, or ``*`` for
-        ``127.0.0.1``): the old socket is closed and the bind tried once more. If that
-        fails too, the old endpoint is bound back.
-
-        Raises:
-            PublishError: the new endpoint cannot be bound; the old one is in use again,
-                or, if even that failed, ``pub`` is None.
-        """
-        old_pub = self.pub
-        try:
-            pub = self._publisher(new)
-        except PublishError:
-            if old_pub is None:
-                raise
-            old_pub.close()
-            self.pub = None
-            try:
-                pub = self._publisher(new)
-            except PublishError:
-                self.pub = self._publisher(old)
-                self.pub.start_waker(self._wake_loop)
-                raise
-            old_pub = None
-        self.pub = pub
-        pub.start_waker(self._wake_loop)
-        if old_pub is not None:
-            old_pub.close()
-
-    def _publisher(self, cfg: Config) -> Publisher:
-        """A publisher bound as ``cfg`` says, CURVE included (a rebind that left it
-        out would publish in clear text)."""
-        p = cfg.publish
-        return Publisher(p.endpoint, p.sndhwm, self._stale_after_s(cfg), curve=p.curve)
-
-    @staticmethod
-    def _stale_after_s(cfg: Config) -> float:
-        """After how long a cached range is replayed as stale, seconds ([filter])."""
-        return cfg.filter.to_filter_config().stale_after_s
-
-    def _source_desc(self, cfg: Config | None = None) -> str:
-        s = (cfg or self.cfg).source
-        if s.kind == "serial":
-            return f"serial {s.device}"
-        if s.kind == "i2c":
-            return f"i2c bus {s.bus} address {s.address:#04x}"
-        return f"replay {s.path}"
-
-    def _reload(self, now: int) -> None:
-        """Re-read the config (SIGHUP); a bad one is refused and the old one stays."""
-        self.notifier.reloading()
-        where = self.config_path or "the command line"
-        try:
-            new = load_config(self.config_path, self.overrides)
-            if new.source.kind == "replay" and new.source != self.cfg.source:
-                check_replay(new.source)
-        except ConfigError as exc:
-            log.error("SIGHUP: keeping the running configuration: %s", exc)
-            self.notifier.ready()
-            return
-        old = self.cfg
-        changed = [
-            name
-            for name in ("sensor", "source", "publish", "filter", "log_level")
-            if getattr(new, name) != getattr(old, name)
-        ]
-        recorder = self.recorder
-        wanted = new.source.record
-        moved = wanted != old.source.record and not (
-            recorder is not None and wanted is not None and _same_file(wanted, recorder.path)
-        )
-        if moved or (recorder is None and wanted):
-            try:
-                recorder = self._new_recorder(new)
-            except ConfigError as exc:
-                log.error("SIGHUP: keeping the running configuration: %s", exc)
-                self.notifier.ready()
-                return
-        rebind = ("endpoint", "sndhwm", "curve")
-        if any(getattr(new.publish, k) != getattr(old.publish, k) for k in rebind):
-            try:
-                self._rebind(new, old)
-            except PublishError as exc:
-                if recorder is not self.recorder and recorder is not None:
-                    recorder.close()
-                if self.pub is None:
-                    log.critical("SIGHUP: %s; cannot publish on any endpoint, stopping", exc)
-                    self._stopping = True
-                    self.exit_code = EX_UNAVAILABLE  # systemd restarts it on a failure
-                    return
-                log.error("SIGHUP: keeping the running configuration: %s", exc)
-                self.notifier.ready()
-                return
-        if recorder is not self.recorder:
-            self.close_recorder()
-            self.recorder = recorder
-        self._apply(new)
-        self.health.filter_config = new.filter.to_filter_config()
-        self.health.sensor = new.sensor.name
-        same_port = new.source.model_copy(update={"record": old.source.record}) == old.source
-        if not same_port or new.sensor != old.sensor:  # a new recording keeps the port open
-            self._drop_source()
-            self._next_open = now
-        log.info(
-            "SIGHUP: configuration reloaded from %s (changed: %s)",
-            where,
-            ", ".join(changed) or "nothing",
-        )
-        self._next_health = now
-        self.notifier.ready()

@@ -14,7 +14,9 @@ from typing import Any
 
 import pytest
 
-from lunad.daemon import bench, cmd_bench
+from lunad.daemon.cli import bench as cmd_bench
+from lunad.daemon.tools import bench
+from lunad.daemon.tools.bench import report
 from lunad.protocol import commands
 
 
@@ -65,7 +67,7 @@ def test_table_renders_every_line() -> None:
         return bench.ServeSummary(variant, hz, 1, 100.0, 2.5, 300.0, p99_us, 0.04, 1.0, 50.0, 0.5)
 
     def render(floor_p99_us: float, per_round: dict[str, list[float | None]] | None = None) -> str:
-        return cmd_bench.render_table(
+        return bench.render_table(
             b,
             p,
             summary("lunad", None),
@@ -114,7 +116,7 @@ def test_table_renders_every_line() -> None:
 @pytest.mark.parametrize("argv", [["--help"]])
 def test_floor_help_runs(argv: list[str]) -> None:
     out = subprocess.run(
-        [sys.executable, "-m", "lunad.daemon.bench", *argv],
+        [sys.executable, "-m", "lunad.daemon.tools.bench", *argv],
         capture_output=True,
         text=True,
         timeout=30,
@@ -124,9 +126,9 @@ def test_floor_help_runs(argv: list[str]) -> None:
 
 def test_no_ratio_when_the_floor_measured_nothing() -> None:
     """A short window on a loaded machine can give the floor 0 CPU ticks: no crash."""
-    assert cmd_bench.ratio(3.0, 1.5) == 2.0
-    assert cmd_bench.ratio(3.0, 0.0) is None
-    assert cmd_bench._x(None).startswith("n/a")
+    assert bench.ratio(3.0, 1.5) == 2.0
+    assert bench.ratio(3.0, 0.0) is None
+    assert report._x(None).startswith("n/a")
 
 
 def test_task_totals_count_every_threads_cpu_and_sleeps() -> None:
@@ -134,7 +136,7 @@ def test_task_totals_count_every_threads_cpu_and_sleeps() -> None:
     import threading
     import time
 
-    before = bench._task_totals(os.getpid())
+    before = bench.task_totals(os.getpid())
     if before is None:
         pytest.skip("this kernel has no /proc/<pid>/task/*/schedstat")
 
@@ -152,7 +154,7 @@ def test_task_totals_count_every_threads_cpu_and_sleeps() -> None:
     t = threading.Thread(target=work)
     t.start()
     worked.wait()  # this thread sleeps once or twice meanwhile, the worker 30 times
-    during = bench._task_totals(os.getpid())
+    during = bench.task_totals(os.getpid())
     leave.set()
     t.join()
     assert during is not None
@@ -163,28 +165,28 @@ def test_task_totals_count_every_threads_cpu_and_sleeps() -> None:
 def test_idle_target_counts_wake_ups_beyond_the_health_message() -> None:
     """No polling: a wake-up a second for health passes, ten a second fail; without
     schedstat (NaN) the clock ticks must not move."""
-    allowed = cmd_bench.idle_wakeups_allowed()
+    allowed = bench.idle_wakeups_allowed()
     assert allowed == 2.0  # the default health interval, 1 s: the loop and ZeroMQ's I/O thread
 
     def run(wakeups: float, cpu_pct: float = 0.04) -> Any:
         return argparse.Namespace(idle_wakeups_per_s=wakeups, idle_cpu_pct=cpu_pct)
 
-    assert cmd_bench.idle_without_polling(run(1.0))
-    assert not cmd_bench.idle_without_polling(run(10.0))
-    assert cmd_bench.idle_without_polling(run(float("nan"), 0.0))
-    assert not cmd_bench.idle_without_polling(run(float("nan"), 0.33))
+    assert bench.idle_without_polling(run(1.0))
+    assert not bench.idle_without_polling(run(10.0))
+    assert bench.idle_without_polling(run(float("nan"), 0.0))
+    assert not bench.idle_without_polling(run(float("nan"), 0.33))
 
 
 def test_round_ratios_pair_the_rounds_in_order() -> None:
     def runs(*cpu: float) -> Any:
         return argparse.Namespace(runs=[argparse.Namespace(cpu_us_per_frame=c) for c in cpu])
 
-    assert cmd_bench.round_ratios(runs(60.0, 90.0), runs(120.0, 150.0)) == [0.5, 0.6]
-    assert cmd_bench.round_ratios(runs(60.0), runs(0.0)) == [None]
+    assert bench.round_ratios(runs(60.0, 90.0), runs(120.0, 150.0)) == [0.5, 0.6]
+    assert bench.round_ratios(runs(60.0), runs(0.0)) == [None]
 
 
 def test_cpu_split_gives_the_process_under_test_a_cpu_of_its_own() -> None:
-    from lunad.daemon.bench import cpu_split
+    from lunad.daemon.tools.bench import cpu_split
 
     cpus = os.sched_getaffinity(0)
     split = cpu_split()

@@ -17,7 +17,7 @@ from typing import Any
 
 import pytest
 
-from lunad.daemon.cmd_calibrate import compute, write_filter_values
+from lunad.daemon.cli.calibrate import compute, write_filter_values
 from lunad.daemon.config import load_config
 from lunad.filters import FilterConfig
 from lunad.sim.physics import (

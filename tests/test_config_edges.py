@@ -67,8 +67,8 @@ def assert_refused(r: subprocess.CompletedProcess[str], *needles: str) -> None:
 
 def write_recording(path: Path, reads: int, frame_rate_hz: int = 100) -> None:
     """A recording of ``reads`` reads of one frame each, ``1 / frame_rate_hz`` apart."""
-    from lunad.daemon.record import Recorder
-    from lunad.daemon.source import Chunk
+    from lunad.daemon.sources.base import Chunk
+    from lunad.daemon.sources.recording import Recorder
     from lunad.protocol.frame import encode_frame
 
     period_ns = 1_000_000_000 // frame_rate_hz

@@ -25,7 +25,7 @@ import pytest
 import zmq
 from zmq.auth import load_certificate
 
-from lunad.daemon.cmd_keys import make_pair
+from lunad.daemon.cli.keys import make_pair
 from lunad.daemon.config import MAX_KEY_FILE_BYTES, load_config
 from lunad.daemon.errors import ConfigError
 from lunad.protocol.client import Subscriber

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from lunad.daemon import cmd_eval
+from lunad.daemon.cli import evaluate as cmd_eval
 from lunad.sim import evaluate as ev
 from lunad.sim.scenario import load_scenario
 

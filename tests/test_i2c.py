@@ -18,13 +18,13 @@ from types import SimpleNamespace
 
 import pytest
 
-from lunad.daemon import i2c_source
 from lunad.daemon.config import SourceSection, load_config
 from lunad.daemon.errors import SourceLostError, SourceOpenError
-from lunad.daemon.i2c_source import I2CSource
 from lunad.daemon.notify import Notifier
 from lunad.daemon.publisher import Publisher
 from lunad.daemon.serve import Daemon
+from lunad.daemon.sources import i2c as i2c_source
+from lunad.daemon.sources.i2c import I2CSource
 from lunad.protocol import CommandReply, Frame, FrameParser, commands
 from lunad.protocol.client import Subscriber
 from lunad.protocol.commands import CommandId, Version, decode_reply

@@ -18,9 +18,9 @@ import pytest
 import serial
 
 from lunad.daemon.errors import SourceOpenError
-from lunad.daemon.record import Recorder, Replay
-from lunad.daemon.serial_source import PortBusyError, SerialSource, port_holder
-from lunad.daemon.source import Chunk
+from lunad.daemon.sources.base import Chunk
+from lunad.daemon.sources.recording import Recorder, Replay
+from lunad.daemon.sources.serial import PortBusyError, SerialSource, port_holder
 
 LUNAD = [sys.executable, "-m", "lunad.daemon.cli"]
 EX_UNAVAILABLE = 69

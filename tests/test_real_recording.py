@@ -21,8 +21,8 @@ from typing import Any
 
 import zmq
 
-from lunad.daemon.record import Recorder
-from lunad.daemon.source import Chunk
+from lunad.daemon.sources.base import Chunk
+from lunad.daemon.sources.recording import Recorder
 from lunad.filters import FilterConfig
 from lunad.protocol.frame import encode_frame
 from lunad.protocol.messages import HealthMessage, RangeMessage, decode

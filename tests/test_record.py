@@ -16,7 +16,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lunad.daemon.errors import LunadError, SourceOpenError
-from lunad.daemon.record import (
+from lunad.daemon.sources.base import Chunk
+from lunad.daemon.sources.recording import (
     MAGIC,
     Pacer,
     Recorder,
@@ -25,8 +26,7 @@ from lunad.daemon.record import (
     Replay,
     paced,
 )
-from lunad.daemon.replay_source import ReplaySource
-from lunad.daemon.source import Chunk
+from lunad.daemon.sources.replay import ReplaySource
 from lunad.protocol import FrameParser, encode_frame
 
 RECORD_OVERHEAD = 16  # t_mono_ns u64 + length u32 + crc32 u32

@@ -15,7 +15,7 @@ from typing import Any
 
 import pytest
 
-from lunad.daemon.record import Replay
+from lunad.daemon.sources.recording import Replay
 from lunad.protocol.client import Subscriber
 from lunad.protocol.messages import RangeMessage
 from lunad.sim.physics import Truth
@@ -232,8 +232,8 @@ def test_replay_keeps_sending_health(start_daemon: Any, endpoint: str, tmp_path:
     clock: health comes every second while it plays (timed by the recorded times, it came
     every 2 s or so), says ``waiting`` until the first subscriber, and a last ``stopped``
     one counts every frame."""
-    from lunad.daemon.record import Recorder
-    from lunad.daemon.source import Chunk
+    from lunad.daemon.sources.base import Chunk
+    from lunad.daemon.sources.recording import Recorder
     from lunad.protocol.frame import encode_frame
     from lunad.protocol.messages import HealthMessage
 
@@ -266,8 +266,8 @@ def test_sighup_to_a_missing_recording_keeps_the_replay(
 ) -> None:
     """Start-up refuses a ``--replay`` path that is missing; a reload to one was taken,
     dropped the replay that worked and sat in ``reconnecting``. Now it is refused too."""
-    from lunad.daemon.record import Recorder
-    from lunad.daemon.source import Chunk
+    from lunad.daemon.sources.base import Chunk
+    from lunad.daemon.sources.recording import Recorder
     from lunad.protocol.frame import encode_frame
 
     rec = tmp_path / "four_s.lunarec"
@@ -358,8 +358,8 @@ def test_a_file_being_recorded_is_refused_by_record_and_serve(
     second writer used to append beside it, both reporting success while they overwrote
     each other's records; now ``lunad record`` and ``lunad serve --record`` refuse it at
     start with one line and exit 78, and the file is untouched."""
-    from lunad.daemon.record import Recorder
-    from lunad.daemon.source import Chunk
+    from lunad.daemon.sources.base import Chunk
+    from lunad.daemon.sources.recording import Recorder
 
     dev = device(rate_hz=100, output_enabled=False)
     rec = tmp_path / "busy.lunarec"

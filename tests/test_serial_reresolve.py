@@ -22,7 +22,7 @@ from typing import Any
 import pytest
 
 from lunad.daemon.errors import SourceLostError
-from lunad.daemon.serial_source import PATH_CHECK_S, SerialSource
+from lunad.daemon.sources.serial import PATH_CHECK_S, SerialSource
 from lunad.protocol.client import Subscriber
 from lunad.protocol.frame import Frame
 from lunad.protocol.messages import Message, RangeMessage

@@ -10,7 +10,7 @@ from collections.abc import Iterator
 import pytest
 
 from lunad.daemon.errors import SourceLostError
-from lunad.daemon.serial_source import SerialSource
+from lunad.daemon.sources.serial import SerialSource
 from lunad.protocol.frame import encode_frame
 
 FRAME = encode_frame(123, 1500, 2368)

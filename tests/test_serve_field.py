@@ -14,7 +14,7 @@ from typing import Any
 import pytest
 import zmq
 
-from lunad.daemon.source import Chunk, Source
+from lunad.daemon.sources.base import Chunk, Source
 from lunad.filters import FilterConfig
 from lunad.protocol.client import Subscriber
 from lunad.protocol.commands import CommandId, encode_reply
@@ -118,8 +118,8 @@ def test_publish_hz_folds_every_frame_of_a_source_read_as_it_gives_them(
     come and fold by their times, not take one a publish time. A replay of reads one
     frame each (a live serial run at full rate) folds 10 frames a message at
     ``--publish-hz 10``, at any speed; the I2C sensor at 100 Hz about as many."""
-    from lunad.daemon.record import Recorder
-    from lunad.daemon.source import Chunk
+    from lunad.daemon.sources.base import Chunk
+    from lunad.daemon.sources.recording import Recorder
     from lunad.protocol.frame import encode_frame
 
     rec = tmp_path / "one_a_read.lunarec"
@@ -366,8 +366,8 @@ def test_the_filter_gets_a_reads_frames_a_frame_period_apart(
     reads one after a stall or from a USB adapter's packets."""
     import random
 
-    from lunad.daemon.record import Recorder
-    from lunad.daemon.source import Chunk
+    from lunad.daemon.sources.base import Chunk
+    from lunad.daemon.sources.recording import Recorder
     from lunad.filters import RangeFilter
     from lunad.protocol.frame import encode_frame
 
@@ -436,8 +436,8 @@ def test_health_counts_every_frame_and_every_dropout(
     low-power one adds up a read's frames after filtering them all. A replay of reads of
     5 frames, one of them too weak to range (a dropout) at a different place each read:
     every health interval, made of whole reads, has a dropout ratio of 1/5."""
-    from lunad.daemon.record import Recorder
-    from lunad.daemon.source import Chunk
+    from lunad.daemon.sources.base import Chunk
+    from lunad.daemon.sources.recording import Recorder
     from lunad.protocol.frame import encode_frame
     from lunad.protocol.messages import HealthMessage
 
@@ -529,7 +529,7 @@ def test_sighup_rebinds_the_same_tcp_port_and_starts_recording(
     """A reload that keeps the TCP port (a new ``sndhwm``, ``*`` for ``127.0.0.1``) is
     taken, though the running socket holds the port; one that adds ``source.record``
     starts the recording."""
-    from lunad.daemon.record import Replay
+    from lunad.daemon.sources.recording import Replay
 
     dev = device(rate_hz=100, output_enabled=False)
     port = _free_tcp_port()

@@ -19,8 +19,17 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from lunad.daemon import cmd_soak, soak, soak_bytes
-from lunad.daemon.soak import FAULT_KINDS, FaultResult, Ledger, Sample, SoakReport
+from lunad.daemon.cli import soak as cmd_soak
+from lunad.daemon.tools import soak
+from lunad.daemon.tools.soak import (
+    FAULT_KINDS,
+    FaultResult,
+    Ledger,
+    Sample,
+    SoakReport,
+    byte_check,
+    ledger,
+)
 from lunad.protocol.frame import Frame, encode_frame
 from lunad.protocol.parser import FrameParser
 
@@ -208,7 +217,7 @@ def test_ledger_reference_is_a_plain_parse_of_the_bytes(
         s["frames_sent"] + s["false_frames"] - s["eaten_frames"] - s["undecided_frames"]
     )
     for seq, f in enumerate(want):
-        assert led.on_range(seq, soak._raw_m(f.dist), f.amp)
+        assert led.on_range(seq, ledger._raw_m(f.dist), f.amp)
     assert led.settled() and led.summary()["lost"] == 0
 
 
@@ -407,7 +416,7 @@ def test_soak_60s_passes(capsys: Any, tmp_path: Path) -> None:
     assert acc["frames_sent"] - acc["eaten_frames"] + acc["false_frames"] == acc["published"]
     assert doc["daemon_exit_code"] == 0 and doc["daemon_died_at_s"] is None
     assert doc["fds"]["end"] <= doc["fds"]["baseline"]
-    check = soak_bytes.compare(tmp_path)  # every byte the sensor wrote, read in order
+    check = byte_check.compare(tmp_path)  # every byte the sensor wrote, read in order
     assert check.complete, check.summary()
     assert check.frames == acc["published"]  # one plain parse of the wire = what was published
     assert doc["byte_check"]["complete"] and (tmp_path / "report.json").exists()
@@ -436,8 +445,8 @@ def test_daemon_killed_mid_run_fails() -> None:
 def test_soak_bytes_finds_skipped_and_foreign_bytes(tmp_path: Path) -> None:
     """The byte check itself: a span the daemon never read, and bytes the sensor never
     wrote, are both reported; equal streams in any chunking are complete."""
-    from lunad.daemon.record import Recorder
-    from lunad.daemon.source import Chunk
+    from lunad.daemon.sources.base import Chunk
+    from lunad.daemon.sources.recording import Recorder
 
     wire = b"".join(_frame(200 + i, 1000 + i) for i in range(6))
 
@@ -446,14 +455,14 @@ def test_soak_bytes_finds_skipped_and_foreign_bytes(tmp_path: Path) -> None:
             for data, t in chunks:
                 rec(Chunk(data, t))
 
-    record(soak_bytes.SENSOR_OUTPUT, [(wire[:27], 1_000), (wire[27:], 2_000)])
-    record(soak_bytes.DAEMON_INPUT, [(wire[:10], 5_000), (wire[10:], 2_500)])
-    ok = soak_bytes.compare(tmp_path)
+    record(byte_check.SENSOR_OUTPUT, [(wire[:27], 1_000), (wire[27:], 2_000)])
+    record(byte_check.DAEMON_INPUT, [(wire[:10], 5_000), (wire[10:], 2_500)])
+    ok = byte_check.compare(tmp_path)
     assert ok.complete and ok.frames == 6 and ok.max_wait_s == 4_000 / 1e9
 
-    (tmp_path / soak_bytes.DAEMON_INPUT).unlink()
-    record(soak_bytes.DAEMON_INPUT, [(wire[:9], 5_000), (wire[18:], 6_000), (b"\xff" * 3, 7_000)])
-    bad = soak_bytes.compare(tmp_path)
+    (tmp_path / byte_check.DAEMON_INPUT).unlink()
+    record(byte_check.DAEMON_INPUT, [(wire[:9], 5_000), (wire[18:], 6_000), (b"\xff" * 3, 7_000)])
+    bad = byte_check.compare(tmp_path)
     assert not bad.complete
     assert bad.skipped == [(0.0, 9)] and bad.unmatched_chunks == 1
-    assert soak_bytes.main([str(tmp_path)]) == 1
+    assert byte_check.main([str(tmp_path)]) == 1

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lunad.daemon import cmd_sweep
+from lunad.daemon.cli import sweep as cmd_sweep
 from lunad.daemon.errors import EX_CONFIG, EX_UNAVAILABLE
 from lunad.sim.fit import BoundCheck, check_claims, format_claims, nelder_mead
 from lunad.sim.paper_model import (
@@ -400,7 +400,7 @@ def test_fit_prints_every_claim_with_its_criterion(capsys) -> None:
 
 def test_help_runs_in_a_subprocess() -> None:
     code = (
-        "import argparse,sys; from lunad.daemon import cmd_sweep;"
+        "import argparse,sys; from lunad.daemon.cli import sweep as cmd_sweep;"
         "p=argparse.ArgumentParser(prog='lunad'); cmd_sweep.add_parser(p.add_subparsers());"
         "p.parse_args(['sweep','--help'])"
     )

@@ -23,7 +23,7 @@ from pathlib import Path
 import pytest
 import zmq
 
-from lunad.daemon.cmd_watch import (
+from lunad.daemon.cli.watch import (
     ASCII_GLYPHS,
     HISTORY_READINGS,
     RANGE_HEADER,

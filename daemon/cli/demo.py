@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from lunad.daemon.cli import Interrupts
+    from lunad.daemon.cli.signals import Interrupts
     from lunad.sim.scenario import Scenario
 
 DESCRIPTION = """\
@@ -59,7 +59,7 @@ def add_parser(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the demo; 0 when the daemon published every frame the sensor sent."""
-    from lunad.daemon.cli import Interrupts
+    from lunad.daemon.cli.signals import Interrupts
     from lunad.sim.scenario import ScenarioError, load_scenario
 
     if args.every < 1:  # watch() divides by it, after the sensor and the daemon are up
@@ -84,7 +84,7 @@ def _run(args: argparse.Namespace, scenario: Scenario, interrupts: Interrupts) -
     The sensor and the daemon start under ``interrupts.held()``, so that a signal
     arriving while either starts waits for the ``finally`` that stops it.
     """
-    from lunad.daemon.cmd_watch import watch
+    from lunad.daemon.cli.watch import watch
     from lunad.sim.physics import RealisticSensor
     from lunad.sim.pty_device import DeviceError, PtyDevice
 

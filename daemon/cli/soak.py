@@ -77,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
     """Run the soak and print the report; 0 on PASS, 1 on FAIL, 2 on a bad option."""
     import json
 
-    from lunad.daemon import soak
+    from lunad.daemon.tools import soak
     from lunad.protocol.commands import FRAME_RATES_HZ
 
     try:

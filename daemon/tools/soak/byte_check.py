@@ -6,7 +6,7 @@ wrote, stamped when written) and ``daemon-input.lunarec`` (every byte the daemon
 stamped when read). This is the evidence behind a soak verdict that does not rely on
 the soak's own reference parser: it found the soak's ledger bug (docs/soak.md).
 
-    python -m lunad.daemon.soak_bytes DIR
+    python -m lunad.daemon.tools.soak DIR
 
 How: the daemon's chunks are located in the sensor's stream one after the other
 (``bytes.find`` from where the previous chunk ended). Bytes passed over are bytes the
@@ -24,7 +24,7 @@ from array import array
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from lunad.daemon.record import Replay
+from lunad.daemon.sources.recording import Replay
 from lunad.protocol.frame import Frame
 from lunad.protocol.parser import FrameParser
 
@@ -113,9 +113,9 @@ def compare(folder: Path | str) -> ByteCheck:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m lunad.daemon.soak_bytes DIR``: exit 0 when the streams agree."""
+    """``python -m lunad.daemon.tools.soak DIR``: exit 0 when the streams agree."""
     p = argparse.ArgumentParser(
-        prog="python -m lunad.daemon.soak_bytes",
+        prog="python -m lunad.daemon.tools.soak",
         description="Compare the byte recordings of `lunad soak --keep-logs DIR`.",
     )
     p.add_argument("folder", metavar="DIR", help="the --keep-logs folder of a soak")
@@ -123,13 +123,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         check = compare(args.folder)
     except (OSError, ValueError) as exc:
-        print(f"soak_bytes: {exc}", file=sys.stderr)
+        print(f"byte_check: {exc}", file=sys.stderr)
         return 2
     print(check.summary())
     for when, n in check.skipped[:20]:
         print(f"  skipped {n} bytes written at {when:.3f} s")
     return 0 if check.complete else 1
-
-
-if __name__ == "__main__":
-    sys.exit(main())

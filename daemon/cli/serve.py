@@ -7,7 +7,7 @@ import gc
 import sys
 from typing import Any
 
-from lunad.daemon.source_args import add_source_args, source_overrides
+from lunad.daemon.cli.source_args import add_source_args, source_overrides
 
 DESCRIPTION = """\
 Read a TF-Luna, clean every reading and publish it over ZeroMQ.
@@ -78,11 +78,11 @@ def run(args: argparse.Namespace) -> int:
     """Validate the config, bind, and serve until SIGTERM/SIGINT.
 
     Signals that come while it starts are noted by ``StartupSignals`` (installed by
-    ``lunad.daemon.cli.main`` before anything slow) and acted on once the daemon's own
+    ``lunad.daemon.cli.main.main`` before anything slow) and acted on once the daemon's own
     handlers are in place: a SIGTERM or SIGINT stops it (exit 0), a SIGHUP that came
     while the config was being read has it read again.
     """
-    from lunad.daemon.cli import StartupSignals
+    from lunad.daemon.cli.signals import StartupSignals
 
     startup: StartupSignals = getattr(args, "startup_signals", None) or StartupSignals()
     reloads_before_reading = startup.reloads
@@ -104,14 +104,14 @@ def run(args: argparse.Namespace) -> int:
         }
         cfg = load_config(args.config, overrides)
         if cfg.source.kind == "replay":
-            from lunad.daemon.replay_source import check_replay
+            from lunad.daemon.sources.replay import check_replay
 
             check_replay(cfg.source)
     except ConfigError as exc:
         print(f"lunad serve: {exc}", file=sys.stderr)
         return EX_CONFIG
 
-    from lunad.daemon.cli import setup_logging
+    from lunad.daemon.cli.main import setup_logging
     from lunad.daemon.publisher import Publisher
     from lunad.daemon.serve import Daemon
 

@@ -116,9 +116,9 @@ class Source(ABC):
 
 
 BACKENDS: dict[str, tuple[str, str]] = {
-    "serial": ("lunad.daemon.serial_source", "SerialSource"),
-    "i2c": ("lunad.daemon.i2c_source", "I2CSource"),
-    "replay": ("lunad.daemon.replay_source", "ReplaySource"),
+    "serial": ("lunad.daemon.sources.serial", "SerialSource"),
+    "i2c": ("lunad.daemon.sources.i2c", "I2CSource"),
+    "replay": ("lunad.daemon.sources.replay", "ReplaySource"),
 }
 """Source kind -> (module, class); the module is imported only when used."""
 

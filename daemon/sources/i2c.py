@@ -50,7 +50,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Protocol
 
 from lunad.daemon.errors import SourceLostError, SourceOpenError
-from lunad.daemon.source import Source
+from lunad.daemon.sources.base import Source
 from lunad.daemon.wakeup import Wakeup
 from lunad.protocol.commands import (
     FRAME_RATES_HZ,

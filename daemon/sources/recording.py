@@ -37,7 +37,7 @@ from typing import Protocol
 
 from lunad.daemon.errors import LunadError
 from lunad.daemon.file_kind import file_kind
-from lunad.daemon.source import Chunk
+from lunad.daemon.sources.base import Chunk
 
 log = logging.getLogger(__name__)
 

@@ -21,8 +21,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from lunad.daemon.errors import ConfigError, LunadError, SourceLostError, SourceOpenError
-from lunad.daemon.record import Pacer, RecordFormatError, Replay, check_speed
-from lunad.daemon.source import Chunk, Source
+from lunad.daemon.sources.base import Chunk, Source
+from lunad.daemon.sources.recording import Pacer, RecordFormatError, Replay, check_speed
 from lunad.daemon.wakeup import Wakeup
 
 if TYPE_CHECKING:

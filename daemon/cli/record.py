@@ -12,7 +12,7 @@ import threading
 import time
 from typing import Any
 
-from lunad.daemon.source_args import add_source_args, source_overrides
+from lunad.daemon.cli.source_args import add_source_args, source_overrides
 
 log = logging.getLogger("lunad.record")
 
@@ -68,7 +68,7 @@ def add_parser(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Record until SIGINT/SIGTERM or ``--duration``; reconnects like the daemon."""
-    from lunad.daemon.cli import setup_logging
+    from lunad.daemon.cli.main import setup_logging
     from lunad.daemon.config import load_config
     from lunad.daemon.errors import (
         EX_CONFIG,
@@ -79,9 +79,9 @@ def run(args: argparse.Namespace) -> int:
         SourceLostError,
         SourceOpenError,
     )
-    from lunad.daemon.record import Recorder
-    from lunad.daemon.serial_source import PortBusyError
-    from lunad.daemon.source import Source, open_source
+    from lunad.daemon.sources.base import Source, open_source
+    from lunad.daemon.sources.recording import Recorder
+    from lunad.daemon.sources.serial import PortBusyError
     from lunad.protocol import commands
 
     try:

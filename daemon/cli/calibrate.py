@@ -32,7 +32,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from lunad.daemon.source_args import add_source_args, source_overrides
+from lunad.daemon.cli.source_args import add_source_args, source_overrides
 from lunad.filters.calibration import (
     MIN_DIFFERENCES,
     Figure,
@@ -492,8 +492,8 @@ def run(args: argparse.Namespace) -> int:
         SourceLostError,
         SourceOpenError,
     )
-    from lunad.daemon.serial_source import PortBusyError
-    from lunad.daemon.source import open_source
+    from lunad.daemon.sources.base import open_source
+    from lunad.daemon.sources.serial import PortBusyError
     from lunad.protocol import Frame, FrameParser, commands
 
     if (problem := _flag_problem(args)) is not None:

@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING
 import serial
 
 from lunad.daemon.errors import SourceLostError, SourceOpenError
-from lunad.daemon.source import Source
+from lunad.daemon.sources.base import Source
 
 VMIN_MAX = 255  # termios VMIN is one byte (termios(3))
 PATH_CHECK_S = 1.0
