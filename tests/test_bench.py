@@ -217,3 +217,24 @@ def test_bad_settings_exit_2_before_measuring(argv: list[str], complaint: str) -
     )
     assert out.returncode == 2 and complaint in out.stderr
     assert "bulk decode" not in out.stderr + out.stdout  # nothing ran
+
+
+def test_publish_hz_is_judged_against_lunad_at_full_rate() -> None:
+    """Low-power mode filters every frame, so its target is half of lunad's own CPU at
+    full rate (issue 20 item 5), not a fraction of the floor loop, which filters none."""
+    b = bench.BulkResult(10, 90, 3e6, 2e5, True)
+
+    def summary(variant: str, hz: float | None, cpu_us: float) -> bench.ServeSummary:
+        return bench.ServeSummary(variant, hz, 1, cpu_us, 2.5, 300.0, 600.0, 0.04, 1.0, 50.0, 0.5)
+
+    def judged(low_cpu_us: float) -> tuple[float | None, bool]:
+        serve = {
+            "lunad": summary("lunad", None, 100.0),
+            "floor": summary("floor", None, 70.0),
+            "lunad_hz": summary("lunad", 50.0, low_cpu_us),
+        }
+        ratios, _, met = bench.verdict(b, serve)
+        return ratios["hz_cpu"], met["hz_cpu_ratio"]
+
+    assert judged(45.0) == (0.45, True)  # 0.64x the floor: the old target said missed
+    assert judged(57.0) == (0.57, False)
