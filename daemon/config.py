@@ -38,6 +38,7 @@ from lunad.daemon.errors import ConfigError
 from lunad.daemon.file_kind import file_kind
 from lunad.filters import FilterConfig
 from lunad.protocol.commands import BAUD_RATES, FRAME_RATES_HZ
+from lunad.protocol.frame import OutputFormat
 
 DEFAULT_ENDPOINT = "tcp://127.0.0.1:7781"
 DEFAULT_DEVICE = "/dev/serial0"
@@ -80,6 +81,7 @@ FLAGS: dict[str, str] = {
     "sensor.name": "--name",
     "sensor.frame_rate_hz": "--rate",
     "sensor.configure": "--no-configure",
+    "sensor.output_format": "--output-format",
     "source.kind": "--device/--bus/--replay",
     "source.device": "--device",
     "source.baud": "--baud",
@@ -126,6 +128,17 @@ class SensorSection(_Section):
     name: Annotated[str, Field(pattern=r"^[A-Za-z0-9_.-]{1,64}$")] = "tfluna"
     frame_rate_hz: int = 100
     configure: bool = True
+    output_format: Literal["cm", "mm"] = "cm"
+    """The distance unit of the UART frames: start-up sets it (command 0x05) and the
+    parser reads frames in it. ``mm`` gives the same distances in millimetres (set
+    [filter] ``resolution_m`` to the step the sensor then shows). A replay reads its
+    recording in it, so give a replay the live run's. Over I2C the distance registers
+    are centimetres whatever this says, so I2C takes ``cm`` only."""
+
+    @property
+    def frame_format(self) -> OutputFormat:
+        """``output_format`` as the protocol's value, for the parser and the command."""
+        return OutputFormat.MM if self.output_format == "mm" else OutputFormat.CM
 
     @field_validator("frame_rate_hz")
     @classmethod
@@ -529,6 +542,15 @@ class Config(_Section):
     filter: FilterSection = FilterSection()
     log_level: Literal["debug", "info", "warning", "error"] = "info"
 
+    @model_validator(mode="after")
+    def _i2c_in_centimetres(self) -> Config:
+        if self.source.kind == "i2c" and self.sensor.output_format != "cm":
+            raise ValueError(
+                "sensor.output_format (--output-format): must be cm over I2C, whose distance"
+                " registers are centimetres; got 'mm'"
+            )
+        return self
+
 
 def load_config(path: Path | str | None, overrides: dict[str, Any] | None = None) -> Config:
     """Read ``path`` (or defaults), apply ``overrides`` and validate.
@@ -705,5 +727,6 @@ def _describe(exc: ValidationError, origin: str) -> str:
         got = err.get("input")
         quiet = err["type"] in ("extra_forbidden", "missing") or isinstance(got, dict)
         suffix = "" if quiet else f"; got {_shown(got)}"
-        lines.append(f"{where}: {msg}{suffix}")
+        lines.append(f"{where}: {msg}{suffix}" if field else msg)  # a check across sections
+        # names its fields itself
     return f"invalid configuration ({origin}): " + "; ".join(lines)

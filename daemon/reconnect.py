@@ -24,7 +24,7 @@ from lunad.daemon.health import Health, State
 from lunad.daemon.sources.base import Source
 from lunad.filters import Estimate, RangeFilter
 from lunad.protocol import commands
-from lunad.protocol.commands import CommandId, CommandReply, OutputFormat, decode_reply
+from lunad.protocol.commands import CommandId, CommandReply, decode_reply
 from lunad.protocol.frame import Frame
 from lunad.protocol.parser import FrameParser
 
@@ -146,8 +146,9 @@ class Reconnecting:
             self.health.serial = str(value).strip("\x00 ") or None
             log.info("sensor serial number %s", self.health.serial)
         elif reply.cmd_id == CommandId.OUTPUT_FORMAT:
-            if value is not OutputFormat.CM:  # the parser reads centimetres regardless
-                log.warning("sensor reports output format %r, asked for centimetres", value)
+            wanted = self.cfg.sensor.frame_format  # the parser reads that regardless
+            if value is not wanted:
+                log.warning("sensor reports output format %r, asked for %r", value, wanted)
         else:
             log.debug("reply to command %#04x: %r", reply.cmd_id, value)
 
@@ -157,7 +158,7 @@ class Reconnecting:
         if src is None or not self.cfg.sensor.configure or self.cfg.source.kind == "replay":
             return None
         try:
-            src.write(commands.startup(self.cfg.sensor.frame_rate_hz))
+            src.write(commands.startup(self.cfg.sensor.frame_rate_hz, self.cfg.sensor.frame_format))
         except SourceLostError as exc:
             log.warning("cannot configure the sensor: %s", exc)
             return None
@@ -168,6 +169,7 @@ class Reconnecting:
         if src is not None:
             src.close()
         self.parser.reset()
+        self.parser.fmt = self.cfg.sensor.frame_format  # a reload may have changed it
         self.filter.reset()
         self._unsent = None
 

@@ -123,7 +123,7 @@ class Daemon(Reconnecting, Reloading):
         self._reload_requested = False
         self._source: Source | None = None
         self.pub: Publisher | None = None
-        self.parser = FrameParser(follow_format_replies=False)  # it never asks for mm
+        self.parser = FrameParser(cfg.sensor.frame_format, follow_format_replies=False)
         self.recorder: Recorder | None = None
         self.run_id = new_run_id()
         """This run's identity in every message (docs/messages.md: ``run``)."""

@@ -238,12 +238,13 @@ def get_full_version() -> bytes:
     return encode_command(CommandId.GET_FULL_VERSION)
 
 
-def startup(rate_hz: int) -> bytes:
-    """What a host sends at connect: firmware version query, centimetre output (a
-    sensor saved in mm would read 2 m as 20), frame rate, output on, serial number."""
+def startup(rate_hz: int, fmt: OutputFormat = OutputFormat.CM) -> bytes:
+    """What a host sends at connect: firmware version query, the output format its
+    parser reads (a sensor saved in mm, read as cm, would give 2 m as 20), frame rate,
+    output on, serial number."""
     return (
         get_version()
-        + set_output_format(OutputFormat.CM)
+        + set_output_format(fmt)
         + set_frame_rate(rate_hz)
         + set_output_enabled(True)
         + read_serial_number()

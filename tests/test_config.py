@@ -84,6 +84,22 @@ def test_the_i2c_rate_is_the_sensor_rate_and_a_bad_one_is_named_once() -> None:
     assert "rate_hz" not in str(info.value).replace("sensor.frame_rate_hz", "")
 
 
+def test_output_format_is_cm_or_mm_and_cm_only_over_i2c() -> None:
+    """[sensor] output_format picks the unit the parser reads and start-up sets; the
+    I2C distance registers are centimetres, so mm there is refused, naming the field."""
+    from lunad.protocol.frame import OutputFormat
+
+    assert load_config(None).sensor.frame_format is OutputFormat.CM
+    mm = load_config(None, {"sensor.output_format": "mm"})
+    assert mm.sensor.frame_format is OutputFormat.MM
+    with pytest.raises(ConfigError) as info:
+        load_config(None, {"sensor.output_format": "inch"})
+    assert "sensor.output_format (--output-format)" in str(info.value)
+    with pytest.raises(ConfigError) as info:
+        load_config(None, {"source.kind": "i2c", "source.bus": "sim", "sensor.output_format": "mm"})
+    assert "sensor.output_format (--output-format): must be cm over I2C" in str(info.value)
+
+
 def test_a_replay_cannot_record_into_itself(tmp_path: Path) -> None:
     """Recording into the file being replayed fed the replay its own output: 5 kB grew
     to 4.5 MB in 7 s and never ended. Any spelling of the same file is refused."""

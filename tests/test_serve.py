@@ -114,6 +114,35 @@ def test_a_stalled_daemon_filters_its_backlog_as_the_sensor_sent_it(
     assert len(spikes) <= 0.01 * len(msgs)
 
 
+@pytest.mark.parametrize("saved", ["cm", "mm"])
+@pytest.mark.parametrize("wanted", ["cm", "mm"])
+def test_the_output_format_is_set_at_start_and_read_in(
+    device: Callable[..., PtyDevice],
+    start_daemon: Any,
+    endpoint: str,
+    subscriber: Subscriber,
+    helpers: Any,
+    saved: str,
+    wanted: str,
+) -> None:
+    """A sensor saved in either unit is set to the configured one at start, and its
+    frames are read in it: 2 m is published as 2 m (a sensor saved in mm, read as cm,
+    gave 20 m)."""
+    from dataclasses import replace
+
+    from lunad.protocol.frame import OutputFormat
+
+    unit = {"cm": OutputFormat.CM, "mm": OutputFormat.MM}
+    dev = device(truth=Truth(2.0, 0.8, 0.0, 0.0), output_enabled=False)
+    dev.sensor.settings = replace(dev.sensor.settings, fmt=unit[saved])
+    start_daemon("--device", dev.path, "--publish", endpoint, "--output-format", wanted)
+    first = helpers.wait_for(subscriber, helpers.is_range, timeout=helpers.startup_s)
+    msgs = helpers.ranges_through(subscriber, first.seq + 50)
+    raws = sorted(m.raw_m for m in msgs[10:] if m.raw_m is not None)
+    assert dev.sensor.settings.fmt is unit[wanted]
+    assert abs(raws[len(raws) // 2] - 2.0) < 0.05, raws[len(raws) // 2]
+
+
 def test_dropout_reasons(running: Any, subscriber: Subscriber, helpers: Any) -> None:
     running(rate_hz=100, truth=Truth(2.0, 0.1, 80.0, 0.0))  # S = 0.017: amp 35
     first = helpers.wait_for(subscriber, helpers.is_range, timeout=5)

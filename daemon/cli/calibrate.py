@@ -529,11 +529,11 @@ def run(args: argparse.Namespace) -> int:
     except SourceOpenError as exc:
         print(f"lunad calibrate: {exc}", file=sys.stderr)
         return EX_UNAVAILABLE if isinstance(exc, PortBusyError) else 1
-    parser = FrameParser()
+    parser = FrameParser(cfg.sensor.frame_format)
     readings: list[tuple[float, int]] = []
     with src:
         if cfg.sensor.configure:
-            src.write(commands.startup(cfg.sensor.frame_rate_hz))
+            src.write(commands.startup(cfg.sensor.frame_rate_hz, cfg.sensor.frame_format))
         deadline = time.monotonic() + args.seconds
         while not stop.is_set() and (left := deadline - time.monotonic()) > 0:
             try:

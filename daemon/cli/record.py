@@ -133,7 +133,9 @@ def run(args: argparse.Namespace) -> int:
                     continue
                 log.info("recording %s to %s", src, args.out)
                 startup = (
-                    commands.startup(cfg.sensor.frame_rate_hz) if cfg.sensor.configure else b""
+                    commands.startup(cfg.sensor.frame_rate_hz, cfg.sensor.frame_format)
+                    if cfg.sensor.configure
+                    else b""
                 )
             try:
                 if startup:

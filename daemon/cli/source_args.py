@@ -17,6 +17,11 @@ def add_source_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--address", help="I2C address (default 0x10)")
     p.add_argument("--rate", metavar="HZ", help="frame rate to set at start (default 100)")
     p.add_argument(
+        "--output-format",
+        choices=("cm", "mm"),
+        help="distance unit to set at start and read frames in (default cm; UART only)",
+    )
+    p.add_argument(
         "--no-configure",
         action="store_true",
         help="do not query the version or set rate and output at start",
@@ -51,5 +56,6 @@ def source_overrides(args: argparse.Namespace) -> dict[str, object]:
         "source.address": args.address,
         "sensor.frame_rate_hz": args.rate,
         "sensor.configure": False if args.no_configure else None,
+        "sensor.output_format": args.output_format,
         "log_level": args.log_level,
     }
