@@ -532,3 +532,29 @@ def test_subscriber_checks_its_curve_keys(keys: Keys, tcp_endpoint: str) -> None
     for kwargs, text in bad:
         with pytest.raises(ValueError, match=text):
             Subscriber(tcp_endpoint, **kwargs)
+
+
+def test_lunad_watch_reads_a_curve_endpoint_with_its_keys(
+    curve_daemon: Callable[..., Any], keys: Keys, tcp_endpoint: str
+) -> None:
+    """``lunad watch --curve-server-key --curve-client-key`` reads the stream as robot
+    code would; one key alone is refused with exit 2, naming both flags."""
+    import sys
+
+    curve_daemon()
+    watch = [sys.executable, "-m", "lunad.daemon.cli", "watch", "--connect", tcp_endpoint]
+    done = subprocess.run(
+        [*watch, "--json", "--count", "5", "--duration", "20",
+         "--curve-server-key", str(keys.server_public),
+         "--curve-client-key", str(keys.robot_secret)],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    lines = [line for line in done.stdout.splitlines() if '"topic":"range/c1/"' in line]
+    assert len(lines) >= 5, done.stdout[-500:]
+    half = subprocess.run(
+        [*watch, "--count", "1", "--curve-server-key", str(keys.server_public)],
+        capture_output=True, text=True, timeout=30,
+    )  # fmt: skip
+    assert half.returncode == 2
+    assert "--curve-server-key and --curve-client-key go together" in half.stderr

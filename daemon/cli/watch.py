@@ -52,6 +52,8 @@ examples:
   lunad watch --connect ipc:///run/lunad/front.sock --every 25
   lunad watch --connect tcp://127.0.0.1:7781 --refresh
   lunad watch --connect tcp://127.0.0.1:7781 --json --count 100 > readings.jsonl
+  lunad watch --connect tcp://192.168.1.10:7781 --curve-server-key ~/keys/server.key \
+              --curve-client-key ~/keys/robot1.key_secret     a CURVE endpoint
 """
 
 NOTHING_YET_AFTER_S = 5.0
@@ -105,6 +107,17 @@ def add_parser(sub: Any) -> None:
         help="where the daemon publishes (default tcp://127.0.0.1:7781)",
     )
     p.add_argument("--sensor", help="only this sensor's messages")
+    p.add_argument(
+        "--curve-server-key",
+        metavar="FILE",
+        help="a CURVE endpoint: the daemon's public key file (server.key), with --curve-client-key",
+    )
+    p.add_argument(
+        "--curve-client-key",
+        metavar="FILE",
+        help="a CURVE endpoint: this client's secret key file (NAME.key_secret, made by"
+        " lunad keys client), whose public key the daemon lists",
+    )
     p.add_argument(
         "--every",
         type=int,
@@ -190,12 +203,17 @@ class EndpointError(ValueError):
     """``--connect`` names no endpoint a SUB socket can connect to; the message says why."""
 
 
-def _subscribe(endpoint: str, sensor: str | None) -> Subscriber:
+CurveKeys = tuple[str, str]
+"""(the daemon's public key file, this client's secret key file), for a CURVE endpoint."""
+
+
+def _subscribe(endpoint: str, sensor: str | None, curve: CurveKeys | None = None) -> Subscriber:
     """A connected ``Subscriber``.
 
     Raises:
-        EndpointError: ``endpoint`` is not one to connect to; libzmq's own error is a
-            traceback that names neither the flag nor the endpoint's expected form.
+        EndpointError: ``endpoint`` is not one to connect to, or ``curve``'s key files
+            are not usable; libzmq's own error is a traceback that names neither the flag
+            nor the endpoint's expected form.
     """
     import zmq
 
@@ -205,9 +223,15 @@ def _subscribe(endpoint: str, sensor: str | None) -> Subscriber:
     problem = tcp_port_problem(endpoint)  # the rest, libzmq refuses at connect
     if problem is None:
         try:
-            return Subscriber(endpoint, sensor=sensor)
+            if curve is None:
+                return Subscriber(endpoint, sensor=sensor)
+            return Subscriber(
+                endpoint, sensor=sensor, curve_server_key=curve[0], curve_client_key=curve[1]
+            )
         except zmq.ZMQError as exc:
             problem = str(exc) if exc.errno is None else zmq.strerror(exc.errno)
+        except ValueError as exc:  # a key file the client cannot use: it says which
+            raise EndpointError(f"--curve-server-key/--curve-client-key: {exc}") from None
     raise EndpointError(
         f"--connect {endpoint!r}: {problem}; expected tcp://HOST:PORT or ipc:///PATH"
     )
@@ -231,6 +255,7 @@ def watch(
     count: int | None = None,
     duration: float | None = None,
     header: bool = False,
+    curve: CurveKeys | None = None,
 ) -> WatchResult:
     """Print the stream as lines until ``count`` readings or ``duration`` seconds.
 
@@ -249,7 +274,7 @@ def watch(
     heard = False
     hint_at = time.monotonic() + NOTHING_YET_AFTER_S
     lines = 0
-    with _subscribe(endpoint, sensor) as sub:
+    with _subscribe(endpoint, sensor, curve) as sub:
         try:
             while count is None or readings < count:
                 left = None if deadline is None else deadline - time.monotonic()
@@ -485,6 +510,7 @@ def screen(
     sensor: str | None = None,
     count: int | None = None,
     duration: float | None = None,
+    curve: CurveKeys | None = None,
 ) -> WatchResult:
     """The full-screen view until q, Ctrl-C, ``count`` readings or ``duration`` seconds.
 
@@ -496,7 +522,7 @@ def screen(
 
     if not sys.stdout.isatty() or not sys.stdin.isatty():
         raise TerminalError("--refresh needs a terminal; without one, leave it out")
-    with _subscribe(endpoint, sensor) as sub:
+    with _subscribe(endpoint, sensor, curve) as sub:
         model = ScreenModel(endpoint, time.monotonic())
         try:
             curses.wrapper(_screen, sub, model, count, duration)
@@ -575,9 +601,17 @@ def run(args: argparse.Namespace) -> int:
     if args.every < 1:
         print("lunad watch: --every must be at least 1", file=sys.stderr)
         return USAGE_ERROR
+    keys = (args.curve_server_key, args.curve_client_key)
+    if (keys[0] is None) != (keys[1] is None):
+        print(
+            "lunad watch: --curve-server-key and --curve-client-key go together",
+            file=sys.stderr,
+        )
+        return USAGE_ERROR
+    curve = None if keys[0] is None or keys[1] is None else (keys[0], keys[1])
     try:
         if args.refresh:
-            result = screen(args.connect, args.sensor, args.count, args.duration)
+            result = screen(args.connect, args.sensor, args.count, args.duration, curve)
         else:
             result = watch(
                 args.connect,
@@ -588,6 +622,7 @@ def run(args: argparse.Namespace) -> int:
                 args.count,
                 args.duration,
                 header=not args.json and sys.stdout.isatty(),
+                curve=curve,
             )
     except (EndpointError, TerminalError) as exc:
         print(f"lunad watch: {exc}", file=sys.stderr)
