@@ -19,7 +19,7 @@ $(STAMP): pyproject.toml | $(PY)
 demo: $(STAMP)
 	$(VENV)/bin/lunad demo
 
-## test: lint, type check and the default tests, incl. a 60 s soak (bench and long soaks are opt-in)
+## test: lint, type check and the default tests, incl. a 50 s soak (bench and long soaks are opt-in)
 test: $(STAMP) typecheck
 	$(VENV)/bin/ruff check protocol filters sim daemon tests
 	$(VENV)/bin/python -m pytest

@@ -33,7 +33,7 @@ def test_floor_sends_the_encoders_output_on_command() -> None:
 
 
 def test_quick_json_has_every_figure(capsys: Any) -> None:
-    code, out = _run("--quick", "--format", "json", capsys=capsys)
+    code, out = _run("--quick", "--duration", "1", "--format", "json", capsys=capsys)
     assert code == 0
     doc = json.loads(out)
     assert doc["bulk"]["same_as_streaming"] is True

@@ -21,7 +21,7 @@ this file run as a script, speaking ZMTP 3.0 NULL on a raw socket, or a ``zmq.XS
 
 Environment:
 
-- ``LUNAD_ATTACK_S``: how long each attack plays, seconds (default 3, to keep CI
+- ``LUNAD_ATTACK_S``: how long each attack plays, seconds (default 2, to keep CI
   short; issue #21 asks for 10).
 - ``LUNAD_ATTACK_REPORT``: a file to which each daemon test appends its figures as
   one JSON line (``DaemonFigures``), before asserting, so a failed target is reported
@@ -70,11 +70,11 @@ REPORT_ENV = "LUNAD_ATTACK_REPORT"
 
 
 def _attack_seconds() -> float:
-    """``LUNAD_ATTACK_S``, else 3 s: long enough for every mechanism to act (the flood
+    """``LUNAD_ATTACK_S``, else 2 s: long enough for every mechanism to act (the flood
     penalty is 1 s, the replay interval 0.5 s), short enough for CI. At least 1 s, so
     that the attacker child is past its imports, and its SIGTERM handler, when the
     daemon tests stop it."""
-    text = os.environ.get(ATTACK_S_ENV, "3")
+    text = os.environ.get(ATTACK_S_ENV, "2")
     try:
         seconds = float(text)
     except ValueError:

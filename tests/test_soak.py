@@ -1,4 +1,4 @@
-"""``lunad soak``: the 60-second soak (in the default run), and fast tests of the duration
+"""``lunad soak``: the 50-second soak (in the default run), and fast tests of the duration
 parser, the schedule, the frame accounting and the verdict, including that it can fail."""
 
 from __future__ import annotations
@@ -395,11 +395,12 @@ def test_a_virtual_sensor_that_dies_fails_the_soak_with_its_report(tmp_path: Pat
     assert (keep / "report.json").exists() and (keep / "daemon.log").exists()
 
 
-def test_soak_60s_passes(capsys: Any, tmp_path: Path) -> None:
-    """The CI soak: every fault type exercised and recovered, nothing lost, PASS; and,
-    independently of the soak's reference parser, the byte recordings agree."""
+def test_soak_50s_passes(capsys: Any, tmp_path: Path) -> None:
+    """The CI soak, as short as a soak may be (every fault type once): every fault
+    exercised and recovered, nothing lost, PASS; and, independently of the soak's
+    reference parser, the byte recordings agree."""
     code = cmd_soak.run(
-        _parse("--duration", "60s", "--seed", "0", "--format", "json", "--keep-logs", str(tmp_path))
+        _parse("--duration", "50s", "--seed", "0", "--format", "json", "--keep-logs", str(tmp_path))
     )
     out, err = capsys.readouterr()
     doc = json.loads(out)
@@ -410,10 +411,13 @@ def test_soak_60s_passes(capsys: Any, tmp_path: Path) -> None:
     for f in doc["faults"]:
         assert f["ok"] and f["recovery_s"] is not None and f["recovery_s"] <= 5.0, f
     acc = doc["accounting"]
-    # 100 Hz for 60 s less the faults' silences: 4915 in a run here, but the virtual sensor is
-    # a thread of this process, and a loaded CI-like run (10 min) made only 3706
-    assert acc["lost"] == 0 and acc["published"] == acc["reference_frames"] > 2000
-    assert acc["frames_sent"] - acc["eaten_frames"] + acc["false_frames"] == acc["published"]
+    # 100 Hz for 50 s less the faults' silences, about 4000, but the virtual sensor is a
+    # thread of this process, and a loaded CI-like run made a quarter fewer
+    assert acc["lost"] == 0 and acc["published"] == acc["reference_frames"] > 1500
+    assert (
+        acc["frames_sent"] - acc["eaten_frames"] + acc["false_frames"] - acc["undecided_frames"]
+        == acc["published"]
+    )  # a last frame whose checksum byte is 0x59 waits, undecided, in both parsers
     assert doc["daemon_exit_code"] == 0 and doc["daemon_died_at_s"] is None
     assert doc["fds"]["end"] <= doc["fds"]["baseline"]
     check = byte_check.compare(tmp_path)  # every byte the sensor wrote, read in order
