@@ -13,7 +13,8 @@ evidence for each choice):
    reading's variance is r = c^2 / S^2 + q (paper eq. 3, q the 1 cm steps) with c
    from the fast average, which follows a cloud within a tenth of a second;
    L_hat = (c - sigma0) / k from the slow average, fed only while the noise is above
-   the output step, is published there and null elsewhere.
+   the output step and near its floor (minimum statistics: clutter is not light), is
+   published there and null elsewhere.
 4. A constant-velocity Kalman filter whose process noise adapts to manoeuvres: it
    runs at ``accel_psd`` (nearly still: it averages a still target like a mean)
    until the innovations carry a bias that their own spread cannot explain, then at
