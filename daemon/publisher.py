@@ -68,8 +68,12 @@ that per peer; it ends peers instead (tests/test_publisher_attacks.py measures e
   coming. Such a peer is reset (TCP) or shut down (ipc), and libzmq frees its topics.
 - topics the daemon does not publish: while subscriptions that match no cached topic
   arrive, each TCP peer is charged what it sends (``TCP_INFO``), and one past
-  ``FOREIGN_BYTES_MAX`` is reset too. That caps libzmq's trie per TCP connection even
-  for a peer paced never to fall behind.
+  ``FOREIGN_BYTES_MAX`` is reset too. Over ipc, where the kernel counts no bytes per
+  connection, ZAP gives each connection a user id of its own (RFC 27), which libzmq
+  attaches to every frame the connection sends (the ``User-Id`` property), so ``pump``
+  charges each such subscription to the connection that sent it; past
+  ``FOREIGN_BYTES_MAX`` the connections of that process are shut. That caps libzmq's
+  trie per connection even for a peer paced never to fall behind.
 - ``MAX_INBOUND_FRAME_BYTES`` (``ZMQ_MAXMSGSIZE``): libzmq drops a peer whose frame is
   longer, before it allocates it. ``INBOUND_HWM`` and ``INBOUND_SOCKET_BUFFER_BYTES``
   keep what a peer has in flight small.
@@ -78,10 +82,7 @@ that per peer; it ends peers instead (tests/test_publisher_attacks.py measures e
   loop's stop, reload and watchdog never wait on peers. Frames that are not
   subscriptions (``b"\\x07hello"``, unsubscriptions) cost one receive each.
 
-Not bounded: over ipc, where the kernel counts no bytes per connection, a peer that
-subscribes to distinct topics slowly enough never to be behind grows libzmq's trie
-until it disconnects (a random 120-byte topic, the longest a frame allows, costs about
-6 KiB). A flooder sharing an address (TCP) or process (ipc) with a new subscriber
+Not bounded: a flooder sharing an address (TCP) or process (ipc) with a new subscriber
 delays that subscriber's admission until ``FLOOD_PENALTY_S`` after its last flood.
 Peers holding every place lock new subscribers out until one leaves. Memory libzmq
 frees stays in the process's heap for reuse: the resident size shows the peak.
@@ -198,10 +199,12 @@ process (ipc) are reset as they come for this long, seconds: each new connection
 in about one 8 KiB read before a sweep can end it, so a flooder reconnecting at once
 would otherwise outrun ``pump``. Subscribers already connected are not touched."""
 PENALTIES_MAX = 1024  # addresses remembered at most; the oldest go first
+USER_ID_PROPERTY = "User-Id"  # the frame property that carries ZAP's user id (zmq_msg_gets(3))
 FOREIGN_BYTES_MAX = 16 * 1024
 """Bytes a TCP peer may send, over its connection's life, in the moments when
 subscriptions to topics that match no cached one are arriving (``TCP_INFO``'s bytes
-received, charged between checks at most ``FOREIGN_WINDOW_S`` apart). An honest
+received, charged between checks at most ``FOREIGN_WINDOW_S`` apart); over ipc, the
+bytes of such subscriptions a connection sent (its ZAP user id). An honest
 subscriber sends a few subscriptions and at most heartbeats; a peer sending distinct
 topics slowly enough never to be behind is cut here, after about 130 topics of 120
 bytes (some 800 KiB of libzmq's trie) or 700 of 20."""
@@ -521,6 +524,8 @@ class Publisher:
         it, under ``_peers_lock``."""
         self._last_charge_ns: int | None = None
         self._penalties: dict[str, int] = {}
+        self._ipc_charges: dict[bytes, int] = {}  # ZAP user id: foreign bytes (ipc)
+        self._zap_requests = 0
         """Where floods came from -> until when (monotonic ns) its connections are refused."""
         self._peers_lock = threading.Lock()
         self._next_sweep_ns = 0
@@ -644,15 +649,17 @@ class Publisher:
         self._read_monitor()
         self._answer_zap()
         recv = sock.recv
+        ipc = self._ipc
         last = self._last
         wanted: set[bytes] = set()
         n = frames = foreign = 0
         while frames < PUMP_EVENTS:
             try:
-                msg = recv(_NOBLOCK)
+                frame = recv(_NOBLOCK, copy=not ipc)
             except zmq.Again:
                 break
             frames += 1
+            msg = frame.bytes if isinstance(frame, zmq.Frame) else frame
             if not msg or msg[0] != SUBSCRIBE:
                 self.junk_frames += 1
                 continue
@@ -665,6 +672,8 @@ class Publisher:
                     ours = True
             if not ours:
                 foreign += 1
+                if isinstance(frame, zmq.Frame):
+                    self._charge_ipc(frame, len(msg))
         else:
             self._more_queued()
         self.subscriptions += n
@@ -676,6 +685,34 @@ class Publisher:
             self._sweep(now, foreign=foreign > 0)
         self._pumped.set()
         return n
+
+    def _charge_ipc(self, frame: zmq.Frame, size: int) -> None:
+        """Charge ``size`` bytes of a subscription to a topic the daemon does not
+        publish to the ipc connection that sent ``frame`` (its ZAP user id); past
+        ``FOREIGN_BYTES_MAX``, shut every connection of that process and penalize it.
+
+        A process, not one connection, because the user id cannot be matched to a
+        descriptor: ZAP gives the peer's process id, the monitor the descriptor.
+        """
+        try:
+            user = str(frame.get(USER_ID_PROPERTY)).encode()
+        except zmq.ZMQError:  # admitted before ZAP answered with an id: cannot happen
+            return
+        charges = self._ipc_charges
+        charged = charges.pop(user, 0) + size  # re-inserted last: the oldest go first
+        if charged <= FOREIGN_BYTES_MAX:
+            charges[user] = charged
+            while len(charges) > PENALTIES_MAX:
+                del charges[next(iter(charges))]
+            return
+        origin = user.decode("ascii", "replace").rsplit("#", 1)[0]
+        now = monotonic_ns()
+        with self._peers_lock:
+            for fd, peer in list(self._peers.items()):
+                if peer.state == _SERVED and peer.origin == origin:
+                    self._cut(fd, _FLOODING)
+                    self.flooding_peers += 1
+            self._penalize(origin, now)
 
     def _more_queued(self) -> None:
         """``pump`` stopped at a bound: have the loop call it again on its next pass.
@@ -786,8 +823,11 @@ class Publisher:
             allowlist = self._allowlist
             status = b"200" if allowlist is None else self._curve_status(allowlist, request, now)
             text = b"OK" if status == b"200" else b"key not allowed"
+            self._zap_requests += 1
+            user = f"{origin}#{self._zap_requests}".encode()  # one per connection: _charge_ipc
+            reply = [request[0], b"", b"1.0", request[3], status, text, user, b""]
             with contextlib.suppress(zmq.ZMQError):
-                zap.send_multipart([request[0], b"", b"1.0", request[3], status, text, b"", b""])
+                zap.send_multipart(reply)
         else:
             self._more_queued()
 
