@@ -50,6 +50,8 @@ from lunad.filters.noise import (
     MIN_STATS_BIAS,
     MIN_STATS_NEAR,
     MIN_STATS_SPANS,
+    SLOW_RESTART_SPANS,
+    SLOW_RISE_RATIO,
     winsorised_abs_mean,
 )
 from lunad.filters.policy import band_edge, first_amp_at_least
@@ -140,6 +142,7 @@ class RangeFilter:
         "_q_m2",
         "_qa_hi",
         "_qa_lo",
+        "_rise",
         "_run_gap",
         "_run_last",
         "_run_n",
@@ -149,6 +152,8 @@ class RangeFilter:
         "_run_sum",
         "_sigma0",
         "_slow_keep",
+        "_slow_restart_w",
+        "_slow_w",
         "_span_frames",
         "_span_i",
         "_span_k",
@@ -227,6 +232,8 @@ class RangeFilter:
         self._kA = 1.0 / (6.0 * m1 * m1)
         self._fast_keep = 1.0 / c.noise_frames
         self._slow_keep = 1.0 / c.noise_slow_frames
+        self._slow_restart_w = 1.0 / (SLOW_RESTART_SPANS * c.noise_frames)
+        self._rise = SLOW_RISE_RATIO
         self._span_frames = c.noise_frames
         self._jump = c.noise_jump_ratio
         self._obs2 = c.lux_observable_sigma_m * c.lux_observable_sigma_m
@@ -251,6 +258,7 @@ class RangeFilter:
         c0 = c.sigma0_m + c.k_m_per_lux * c.lux_init
         self.c2 = c0 * c0
         self.noise_fast = self.noise_slow = 0.0
+        self._slow_w = self._slow_restart_w
         self._span_mins = [_INF] * MIN_STATS_SPANS
         self._span_min = self._learn_below = _INF  # no floor yet: learn everything
         self._span_i = 0
@@ -364,9 +372,13 @@ class RangeFilter:
                             self._span_min = fast
                         slow = self.noise_slow
                         if fast <= self._learn_below:  # nothing on top of the noise
-                            slow += self._slow_keep * (y - slow)
+                            w = self._slow_w
+                            slow += w * (y - slow)
+                            if w > self._slow_keep:  # a running mean until it spans enough
+                                self._slow_w = w / (1.0 + w)
                         if slow > self._jump * fast:  # the light fell
                             slow = fast
+                            self._slow_w = self._slow_restart_w
                         k = self._span_k - 1
                         if k:
                             self._span_k = k
@@ -529,7 +541,7 @@ class RangeFilter:
         """Close a span of the minimum statistics (every ``noise_frames`` observable
         readings): the floor becomes the least span minimum of the last
         ``MIN_STATS_SPANS``. Returns the slow average, restarted at the floor's mean
-        when even the floor rose ``noise_jump_ratio`` above it (the light rose)."""
+        when even the floor rose ``SLOW_RISE_RATIO`` above it (the light rose)."""
         i = self._span_i
         mins = self._span_mins
         mins[i] = self._span_min
@@ -538,7 +550,10 @@ class RangeFilter:
         self._span_k = self._span_frames
         floor = min(mins) * _INV_MIN_STATS_BIAS
         self._learn_below = MIN_STATS_NEAR * floor
-        return floor if floor > self._jump * slow else slow
+        if floor > self._rise * slow:
+            self._slow_w = self._slow_restart_w
+            return floor
+        return slow
 
     def _start(self, z_m: float, r_m2: float) -> None:
         """Begin a track at ``z_m`` (variance ``r_m2``) with unknown speed."""
