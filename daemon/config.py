@@ -7,8 +7,9 @@ every key commented is ``systemd/lunad.toml.example``.
 
 The files the config names for ZeroMQ CURVE ([publish] ``curve_secret_key`` and
 ``curve_clients``) are checked here too, so that a wrong path or a key file that is not
-one stops the start with the field's name rather than at the bind; ``read_key_file``
-is the one reader of key files, shared with the publisher and ``lunad keys``.
+one stops the start with the field's name rather than at the bind. Key files are read
+by ``lunad.protocol.curve_keys.read_key_file``, the one reader of them, shared with the
+publisher, ``lunad keys`` and the subscriber client.
 """
 
 from __future__ import annotations
@@ -19,7 +20,6 @@ import math
 import os
 import re
 import stat
-import struct
 import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal, get_args, get_origin
@@ -35,9 +35,10 @@ from pydantic import (
 )
 
 from lunad.daemon.errors import ConfigError
-from lunad.daemon.file_kind import file_kind
 from lunad.filters import FilterConfig
 from lunad.protocol.commands import BAUD_RATES, FRAME_RATES_HZ
+from lunad.protocol.curve_keys import read_key_file
+from lunad.protocol.file_kind import file_kind
 from lunad.protocol.frame import OutputFormat
 
 DEFAULT_ENDPOINT = "tcp://127.0.0.1:7781"
@@ -64,15 +65,10 @@ PUBLISH_HZ_MIN = 0.01
 """Lowest ``publish_hz``: one message per 100 s. A lower rate has no use (a reading that
 old is stale), and the period 1/rate overflows the loop's nanosecond arithmetic at 1e-300."""
 PUBLISH_HZ_MAX = 250.0  # the sensor's fastest frame rate: faster would fold nothing
-MAX_KEY_FILE_BYTES = 4096
-"""Longest CURVE key file read, bytes: a ZPL certificate as ``zmq.auth`` writes it is
-300 to 400 bytes. A larger file is not a key file, and the
-type and size are checked before reading, so that a FIFO or a device is never read."""
 MAX_CLIENT_KEYS = 256
 """Most entries ``curve_clients`` may hold (a robot fleet has a few keys): the publisher
 re-reads the directory while peers connect, so its size bounds that work. A directory
 holding more is refused at start, and admits nobody if it grows past this later."""
-Z85_KEY_CHARS = 40  # a CURVE key (32 bytes) in Z85 text
 MAX_SHOWN_CHARS = 80
 """A wrong value is quoted in an error up to this many characters: the line stays one
 line whatever a file holds (a 1 MiB string, an integer of 5000 digits)."""
@@ -391,66 +387,6 @@ def non_loopback_host(endpoint: str) -> str | None:
     if address.is_loopback or (mapped is not None and mapped.is_loopback):
         return None
     return host
-
-
-def read_key_file(path: str | os.PathLike[str], secret: bool = False) -> tuple[bytes, bytes | None]:
-    """The Z85 public key of the ZPL certificate ``path``, and its secret key (None when
-    the file has none; with ``secret``, that is an error).
-
-    The file is read only if it is a regular file of at most ``MAX_KEY_FILE_BYTES`` (a
-    FIFO would block its reader, a device be read without end), and each key must be 40
-    Z85 characters (32 bytes); with ``secret``, the public key must be the secret key's.
-
-    Raises:
-        ValueError: why the file is not a usable key file, in one line.
-    """
-    from zmq import curve_public
-    from zmq.auth import load_certificate
-
-    try:
-        st = os.stat(path)
-    except FileNotFoundError:
-        raise ValueError(f"{path} does not exist") from None
-    except OSError as exc:
-        raise ValueError(f"{path} cannot be read: {exc.strerror or exc}") from None
-    kind = file_kind(st.st_mode)
-    if kind is not None:
-        raise ValueError(f"{path} is {kind}, not a regular file")
-    if st.st_size > MAX_KEY_FILE_BYTES:
-        raise ValueError(
-            f"{path} is larger than {MAX_KEY_FILE_BYTES} bytes; a key file is a few hundred"
-        )
-    try:
-        public, secret_key = load_certificate(path)
-    except OSError as exc:
-        raise ValueError(f"{path} cannot be read: {exc.strerror or exc}") from None
-    except ValueError:  # load_certificate found no public-key line
-        raise ValueError(f"{path} is not a key file: it has no public-key line") from None
-    if z85_key(public) is None:
-        raise ValueError(f"{path}: its public-key is not {Z85_KEY_CHARS} Z85 characters")
-    if secret_key is not None and z85_key(secret_key) is None:
-        raise ValueError(f"{path}: its secret-key is not {Z85_KEY_CHARS} Z85 characters")
-    if secret:
-        if secret_key is None:
-            raise ValueError(
-                f"{path} holds no secret key (a public .key file? the secret one ends in "
-                ".key_secret)"
-            )
-        if curve_public(secret_key) != public:
-            raise ValueError(f"{path}: its public-key is not the one of its secret-key")
-    return public, secret_key
-
-
-def z85_key(text: bytes | str) -> bytes | None:
-    """The 32 bytes of a CURVE key written as 40 Z85 characters, or None."""
-    from zmq.utils.z85 import decode
-
-    if len(text) != Z85_KEY_CHARS:
-        return None
-    try:
-        return decode(text)
-    except (ValueError, KeyError, struct.error):  # not ASCII / not Z85 / above 2**32
-        return None
 
 
 def key_dir_problem(path: str | os.PathLike[str]) -> str | None:

@@ -120,10 +120,9 @@ from lunad.daemon.config import (
     CurveFiles,
     is_ipv6_endpoint,
     non_loopback_host,
-    read_key_file,
-    z85_key,
 )
 from lunad.daemon.errors import PublishError
+from lunad.protocol.curve_keys import read_key_file, z85_key
 from lunad.protocol.messages import as_cached
 
 log = logging.getLogger("lunad.publisher")

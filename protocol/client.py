@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import math
 import os
-import struct
 import time
 from collections import deque
 from collections.abc import Iterable, Iterator
@@ -50,9 +49,8 @@ from types import TracebackType
 
 import zmq
 from pydantic import ValidationError
-from zmq.auth import load_certificate
-from zmq.utils import z85
 
+from lunad.protocol.curve_keys import Z85_KEY_CHARS, read_key_file, z85_key
 from lunad.protocol.messages import (
     HEALTH_TOPIC,
     RANGE_TOPIC,
@@ -67,8 +65,6 @@ RECONNECT_IVL_MAX_MS = 2000
 RATE_WINDOW_S = 2.0
 """Messages over this many seconds make ``rate_hz`` (our choice: steady, yet it follows a
 change of ``--publish-hz`` within a couple of seconds)."""
-
-Z85_KEY_CHARS = 40  # a CURVE key (32 bytes) written in Z85
 
 __all__ = ["HealthMessage", "RangeMessage", "StaleStream", "Subscriber"]
 
@@ -277,57 +273,42 @@ class Subscriber:
         self.close()
 
 
-def _z85_key(value: KeyText) -> bytes | None:
+def _key_text(value: KeyText) -> bytes | None:
     """``value`` as the 40 ASCII bytes of a Z85 CURVE key, or None if it is not one."""
     text = value.encode("ascii", "replace") if isinstance(value, str) else bytes(value)
-    if len(text) != Z85_KEY_CHARS:
-        return None
-    try:
-        z85.decode(text)
-    except (ValueError, KeyError, struct.error):  # not Z85, or a group above 2**32
-        return None
-    return text
+    return text if z85_key(text) is not None else None
 
 
-def _load(path: KeyPath, argument: str) -> tuple[bytes, bytes | None]:
-    """The (public, secret) Z85 keys of the key file ``path``, checked."""
-    if not os.path.isfile(path):
-        raise ValueError(f"{argument}: {os.fspath(path)!r} is not a key file (no such file)")
+def _read(path: KeyPath, argument: str, secret: bool = False) -> tuple[bytes, bytes | None]:
+    """The (public, secret) Z85 keys of the key file ``path``, checked as the daemon
+    checks its own (``read_key_file``); a ValueError names ``argument`` first."""
     try:
-        public, secret = load_certificate(path)
-    except (OSError, ValueError) as exc:
-        raise ValueError(f"{argument}: {os.fspath(path)!r} is not a key file: {exc}") from None
-    if _z85_key(public) is None or (secret is not None and _z85_key(secret) is None):
-        raise ValueError(
-            f"{argument}: {os.fspath(path)!r} holds a key that is not 40 Z85 characters"
-        )
-    return public, secret
+        return read_key_file(path, secret=secret)
+    except ValueError as exc:
+        raise ValueError(f"{argument}: {exc}") from None
 
 
 def _server_key(value: KeyText | KeyPath) -> bytes:
     """The server's public key from 40 Z85 characters or a ``.key`` file's path (a
     ``pathlib.Path`` is always a path)."""
-    if isinstance(value, (str, bytes)) and (key := _z85_key(value)) is not None:
+    if isinstance(value, (str, bytes)) and (key := _key_text(value)) is not None:
         return key
     if isinstance(value, bytes):
-        raise ValueError("curve_server_key: bytes must be 40 Z85 characters")
-    return _load(value, "curve_server_key")[0]
+        raise ValueError(f"curve_server_key: bytes must be {Z85_KEY_CHARS} Z85 characters")
+    return _read(value, "curve_server_key")[0]
 
 
 def _client_keys(value: KeyPath | tuple[KeyText, KeyText]) -> tuple[bytes, bytes]:
     """This client's (public, secret) keys from a ``.key_secret`` file's path or a pair,
     checked to belong together: a mismatched pair fails the handshake without a word."""
     if isinstance(value, tuple):
-        public, secret = (_z85_key(v) for v in value)
-        if public is None or secret is None:
-            raise ValueError("curve_client_key: a (public, secret) pair of 40 Z85 characters each")
-    else:
-        public, secret = _load(value, "curve_client_key")
-        if secret is None:
-            raise ValueError(
-                f"curve_client_key: {os.fspath(value)!r} holds no secret key (the client's "
-                "secret file ends in .key_secret)"
-            )
+        public, secret = (_key_text(v) for v in value)
+    else:  # read_key_file checks a file's pair itself, and that it has a secret key
+        public, secret = _read(value, "curve_client_key", secret=True)
+    if public is None or secret is None:
+        raise ValueError(
+            f"curve_client_key: a (public, secret) pair of {Z85_KEY_CHARS} Z85 characters each"
+        )
     if zmq.curve_public(secret) != public:
         raise ValueError("curve_client_key: the public key is not the secret key's")
     return public, secret

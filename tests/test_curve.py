@@ -15,6 +15,7 @@ import signal
 import socket
 import stat
 import subprocess
+import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -26,9 +27,10 @@ import zmq
 from zmq.auth import load_certificate
 
 from lunad.daemon.cli.keys import make_pair
-from lunad.daemon.config import MAX_KEY_FILE_BYTES, load_config
+from lunad.daemon.config import load_config
 from lunad.daemon.errors import ConfigError
 from lunad.protocol.client import Subscriber
+from lunad.protocol.curve_keys import MAX_KEY_FILE_BYTES
 from lunad.protocol.messages import RangeMessage, encode_range, range_ident, topic
 
 SILENCE_S = 2.0
@@ -36,6 +38,9 @@ SILENCE_S = 2.0
 receives some 200 (100 Hz): a leak shows in milliseconds."""
 CONTROL_MESSAGES = 20  # what the control must receive meanwhile
 LOG_WAIT_S = 30.0  # a daemon's start-up lines, on a loaded machine (STARTUP_S)
+HANG_GUARD_S = 30.0
+"""How long a call that must not block is given before the test calls it blocked: only
+a guard, far above the milliseconds it takes."""
 
 
 @dataclass
@@ -502,6 +507,8 @@ def test_subscriber_checks_its_curve_keys(keys: Keys, tcp_endpoint: str) -> None
     server = load_certificate(keys.server_public)[0]
     robot_public, robot_secret = load_certificate(keys.robot_secret)
     assert robot_secret is not None
+    big = keys.robot_secret.with_name("big.key_secret")
+    big.write_bytes(b"#" * (MAX_KEY_FILE_BYTES + 1))
     for server_key in (server, server.decode(), keys.server_public, str(keys.server_public)):
         Subscriber(
             tcp_endpoint, curve_server_key=server_key, curve_client_key=(robot_public, robot_secret)
@@ -526,12 +533,44 @@ def test_subscriber_checks_its_curve_keys(keys: Keys, tcp_endpoint: str) -> None
                 "curve_server_key": keys.clients / "absent.key",
                 "curve_client_key": keys.robot_secret,
             },
-            "no such file",
+            "curve_server_key: .*absent.key does not exist",
+        ),
+        (
+            {"curve_server_key": server, "curve_client_key": big},
+            "curve_client_key: .*larger than",
         ),
     ]
     for kwargs, text in bad:
         with pytest.raises(ValueError, match=text):
             Subscriber(tcp_endpoint, **kwargs)
+
+
+def test_subscriber_names_a_fifo_given_as_a_key_file_instead_of_blocking(
+    keys: Keys, tcp_endpoint: str, tmp_path: Path
+) -> None:
+    """A FIFO as ``curve_server_key`` is refused by what it is, before it is opened:
+    opened for reading, it would block the robot's code until some writer came."""
+    fifo = tmp_path / "server.key"
+    os.mkfifo(fifo)
+    raised: list[BaseException] = []
+
+    def subscribe() -> None:
+        try:
+            Subscriber(
+                tcp_endpoint, curve_server_key=str(fifo), curve_client_key=keys.robot_secret
+            ).close()
+        except BaseException as exc:  # handed to the test's thread
+            raised.append(exc)
+
+    worker = threading.Thread(target=subscribe, daemon=True)
+    worker.start()
+    worker.join(HANG_GUARD_S)
+    if worker.is_alive():  # blocked in open(): a writer's open and close gives it EOF
+        os.close(os.open(fifo, os.O_WRONLY | os.O_NONBLOCK))
+        worker.join(HANG_GUARD_S)
+        pytest.fail(f"Subscriber blocked on the FIFO {fifo} for {HANG_GUARD_S} s")
+    assert len(raised) == 1 and isinstance(raised[0], ValueError), raised
+    assert str(raised[0]) == f"curve_server_key: {fifo} is a FIFO, not a regular file"
 
 
 def test_lunad_watch_reads_a_curve_endpoint_with_its_keys(

@@ -165,7 +165,7 @@ def _link_new(src: Path, dst: Path) -> None:
 
 def _public_key(path: Path) -> str:
     """The Z85 public key of the key file ``path``, checked as the daemon checks it."""
-    from lunad.daemon.config import read_key_file
+    from lunad.protocol.curve_keys import read_key_file
 
     try:
         return read_key_file(path)[0].decode("ascii")
@@ -176,7 +176,8 @@ def _public_key(path: Path) -> str:
 def _list(directory: Path) -> int:
     """Print each ``*.key`` in ``directory`` as the daemon reads it: name, public key;
     files it would skip are named on stderr with the reason."""
-    from lunad.daemon.config import key_dir_problem, read_key_file
+    from lunad.daemon.config import key_dir_problem
+    from lunad.protocol.curve_keys import read_key_file
 
     problem = key_dir_problem(directory)
     if problem is not None:

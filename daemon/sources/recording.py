@@ -36,8 +36,8 @@ from pathlib import Path
 from typing import Protocol
 
 from lunad.daemon.errors import LunadError
-from lunad.daemon.file_kind import file_kind
 from lunad.daemon.sources.base import Chunk
+from lunad.protocol.file_kind import file_kind
 
 log = logging.getLogger(__name__)
 

@@ -1,6 +1,10 @@
 """What kind of file a path names, for the errors that refuse anything but a regular
-file: a config or a recording that is a FIFO blocks its reader without a word, and a
-device is read without end."""
+file: a config, a recording or a CURVE key file that is a FIFO blocks its reader
+without a word, and a device is read without end.
+
+It lives in ``lunad.protocol`` because the subscriber client reads key files too, and
+the client library is used by robot code without the daemon; the daemon imports it
+from here."""
 
 from __future__ import annotations
 
