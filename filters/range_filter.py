@@ -45,6 +45,7 @@ from math import sqrt
 from lunad.filters.config import AMP_AMBIENT, AMP_SATURATED, FilterConfig
 from lunad.filters.estimate import Estimate, Reason, Status, Zone
 from lunad.filters.noise import (
+    FAST_PRIOR_READINGS,
     GAP_NORMALISERS,
     MAX_GAP_FRAMES,
     MIN_STATS_BIAS,
@@ -114,6 +115,7 @@ class RangeFilter:
         "_drift_noise",
         "_drift_thr2",
         "_fast_keep",
+        "_fast_w",
         "_floor",
         "_gap",
         "_gap_prev",
@@ -259,6 +261,7 @@ class RangeFilter:
         self.c2 = c0 * c0
         self.noise_fast = self.noise_slow = 0.0
         self._slow_w = self._slow_restart_w
+        self._fast_w = 1.0 / (1.0 + FAST_PRIOR_READINGS)
         self._span_mins = [_INF] * MIN_STATS_SPANS
         self._span_min = self._learn_below = _INF  # no floor yet: learn everything
         self._span_i = 0
@@ -357,7 +360,10 @@ class RangeFilter:
                     lim = self._clip_a * fast
                     if y > lim:
                         y = lim
-                    fast += self._fast_keep * (y - fast)
+                    w = self._fast_w
+                    fast += w * (y - fast)
+                    if w > self._fast_keep:
+                        self._fast_w = w / (1.0 + w)
                     self.noise_fast = fast
                     qs2 = self._q_m2 * s2
                     c2 = fast * fast * self._kA - qs2
