@@ -384,21 +384,21 @@ class RangeFilter:
                             slow += w * (y - slow)
                             if w > self._slow_keep:  # a running mean until it spans enough
                                 self._slow_w = w / (1.0 + w)
-                        k = self._span_k - 1
                         if slow > self._jump * fast:  # the light fell
                             slow = fast
                             self._slow_w = self._slow_restart_w
-                            k = k or -1  # a new figure now; the span goes on
-                        if k > 0:
+                        k = self._span_k - 1
+                        if k:
                             self._span_k = k
-                            self.noise_slow = slow
-                            if self.lux is None:  # observable again
-                                self._update_lux(slow, qs2, obs)
                         else:
-                            if not k:
-                                slow = self._end_span(slow)
-                            self.noise_slow = slow
-                            self._update_lux(slow, qs2, obs)
+                            slow = self._end_span(slow)
+                        self.noise_slow = slow
+                        c2 = slow * slow * self._kA - qs2
+                        if c2 < obs:
+                            self.lux = None
+                        else:
+                            lux = (sqrt(c2) - self._sigma0) * self._inv_k
+                            self.lux = lux if lux > 0.0 else 0.0
             self._z1 = z
             self._gap_prev = g1
             r = self.c2 / s2 + self._q_m2
@@ -562,18 +562,6 @@ class RangeFilter:
             self._slow_w = self._slow_restart_w
             return floor
         return slow
-
-    def _update_lux(self, slow: float, qs2: float, obs: float) -> None:
-        """L_hat from the slow average ``slow`` (paper eq. 2 inverted), or None where
-        the noise it gives (less the output step's ``qs2``) is below ``obs``. Once a span
-        and when the figure changes at once: lux_est is a slow figure, and the square
-        root is not paid on every frame."""
-        c2 = slow * slow * self._kA - qs2
-        if c2 < obs:
-            self.lux = None
-        else:
-            lux = (sqrt(c2) - self._sigma0) * self._inv_k
-            self.lux = lux if lux > 0.0 else 0.0
 
     def _start(self, z_m: float, r_m2: float) -> None:
         """Begin a track at ``z_m`` (variance ``r_m2``) with unknown speed."""
