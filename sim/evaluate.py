@@ -35,6 +35,10 @@ frames are not within ``STEP_SETTLE_S`` after a distance step):
                   LUX_SETTLE_S (the lux a filter can know)
     lux_null      share of published frames whose lux_est is null (not observable)
 
+and, for lunad, ``mixed_ok``: readings of a beam on two surfaces at an edge
+(edges.py: the readings right after each distance step mix the old and the new
+surface) that it published ``ok``.
+
 lunad's RMSE is compared with the oracle's and median5's on the frames where both
 published (a method that drops the hardest frames must not score better for it).
 
@@ -51,6 +55,8 @@ from dataclasses import asdict, dataclass
 from typing import Protocol
 
 from lunad.filters import FilterConfig, RangeFilter
+from lunad.filters.estimate import Status
+from lunad.sim.edges import EDGE_OLD_SHARES, MIN_EDGE_M, mixed_truth
 from lunad.sim.oracle import tuned_oracle
 from lunad.sim.physics import AMP_AMBIENT, AMP_WEAK, RawReading, RealisticSensor, Truth
 from lunad.sim.scenario import Scenario
@@ -73,10 +79,14 @@ WORLDS = ("paper", "shot")
 
 
 class Sensor(Protocol):
-    """What a world must do: draw one reading for a truth."""
+    """What a world must do: draw one reading for a truth, and say its amp."""
 
     def sample(self, truth: Truth, rng: random.Random, amp_threshold: int = ...) -> RawReading:
         """One reading for ``truth``."""
+        ...
+
+    def amp_of(self, truth: Truth) -> float:
+        """The amp ``truth`` returns before jitter and the sensor's limits."""
         ...
 
 
@@ -122,6 +132,8 @@ class ScenarioResult:
         vs_oracle: lunad's RMSE over the oracle's, on frames both published.
         vs_median5: lunad's RMSE over median5's, on frames both published.
         methods: one result per method, in METHODS order.
+        mixed_frames: readings of a beam on two surfaces (edges.py).
+        mixed_ok: of those, the ones lunad published ``ok``.
     """
 
     scenario: str
@@ -134,6 +146,8 @@ class ScenarioResult:
     vs_oracle: float | None
     vs_median5: float | None
     methods: tuple[MethodResult, ...]
+    mixed_frames: int = 0
+    mixed_ok: int = 0
 
     def get(self, method: str) -> MethodResult:
         """The result of ``method``."""
@@ -172,6 +186,8 @@ class Run:
         amp: reported amp per frame.
         t_ns: frame times, nanoseconds.
         sigma_m: the true one-sigma noise per frame, metres (None without a distance).
+        mixed: per frame, whether the reading mixes two surfaces at an edge (edges.py);
+            empty for a run made without them.
     """
 
     truth: tuple[Truth, ...]
@@ -179,28 +195,42 @@ class Run:
     amp: tuple[int, ...]
     t_ns: tuple[int, ...]
     sigma_m: tuple[float | None, ...]
+    mixed: tuple[bool, ...] = ()
 
 
 def simulate(
     scenario: Scenario, world: str = "paper", noise_scale: float = 1.0, seed: int = 0
 ) -> Run:
-    """Draw one seeded run of ``scenario`` from ``world``'s sensor."""
+    """Draw one seeded run of ``scenario`` from ``world``'s sensor; the readings right
+    after each distance step see both surfaces (edges.py)."""
     sensor = make_sensor(world, noise_scale)
     rng = random.Random(f"{seed}:{scenario.name}")
+    edge_of: dict[int, tuple[int, int]] = {}  # frame: (its step's frame, readings since)
+    for f in scenario.step_frames():
+        for k in range(len(EDGE_OLD_SHARES)):
+            edge_of.setdefault(f + k, (f, k))
     truth: list[Truth] = []
     raw_m: list[float | None] = []
     amps: list[int] = []
     t_ns: list[int] = []
     sigmas: list[float | None] = []
-    for t in scenario.frame_times():
+    mixed: list[bool] = []
+    for i, t in enumerate(scenario.frame_times()):
         tr = scenario.truth_at(t)
-        rd = sensor.sample(tr, rng)
+        seen = tr
+        edge = edge_of.get(i)
+        if edge is not None and edge[0] > 0:
+            old = truth[edge[0] - 1]
+            if abs(old.distance_m - tr.distance_m) >= MIN_EDGE_M:
+                seen = mixed_truth(sensor.amp_of, old, tr, EDGE_OLD_SHARES[edge[1]])
+        rd = sensor.sample(seen, rng)
         truth.append(tr)
         raw_m.append(rd.dist_cm * 0.01 if rd.dist_cm else None)
         amps.append(rd.amp)
         t_ns.append(round(t * 1e9))
         sigmas.append(rd.sigma_m)
-    return Run(tuple(truth), tuple(raw_m), tuple(amps), tuple(t_ns), tuple(sigmas))
+        mixed.append(seen is not tr and rd.dist_cm > 0)
+    return Run(tuple(truth), tuple(raw_m), tuple(amps), tuple(t_ns), tuple(sigmas), tuple(mixed))
 
 
 def _median5(run: Run) -> list[float | None]:
@@ -222,17 +252,21 @@ def _median5(run: Run) -> list[float | None]:
 
 def _lunad(
     run: Run, config: FilterConfig | None
-) -> tuple[list[float | None], list[float | None], list[float | None]]:
+) -> tuple[list[float | None], list[float | None], list[float | None], list[bool]]:
+    """lunad's estimates, sigmas, lux figures (None where no range is published) and
+    whether each frame was published ``ok``."""
     flt = RangeFilter(config)
     est: list[float | None] = []
     sig: list[float | None] = []
     lux: list[float | None] = []
+    ok: list[bool] = []
     for z, amp, t in zip(run.raw_m, run.amp, run.t_ns, strict=True):
         e = flt.step(z, amp, t)
         est.append(e.range_m)
         sig.append(e.sigma_m)
         lux.append(e.lux_est if e.range_m is not None else None)
-    return est, sig, lux
+        ok.append(e.status is Status.OK)
+    return est, sig, lux, ok
 
 
 def _away(n: int, step_frames: Sequence[int], settle: int) -> list[bool]:
@@ -379,7 +413,7 @@ def evaluate_run(
         run.raw_m, run.amp, run.t_ns, run.sigma_m, oracle_score, max_coast_s=ORACLE_MAX_COAST_S
     )
     m_est = _median5(run)
-    l_est, l_sig, l_lux = _lunad(run, config)
+    l_est, l_sig, l_lux, l_ok = _lunad(run, config)
     true_lux = [tr.lux for tr in run.truth]
     settled = _lux_settled(run, scenario.rate_hz)
     readable = [
@@ -403,6 +437,8 @@ def evaluate_run(
         vs_oracle=_shared_rmse(l_est, o_est, truth, away),
         vs_median5=_shared_rmse(l_est, m_est, truth, away),
         methods=results,
+        mixed_frames=sum(run.mixed),
+        mixed_ok=sum(m and k for m, k in zip(run.mixed, l_ok, strict=False)),
     )
 
 
@@ -505,6 +541,11 @@ def check_targets(result: ScenarioResult, targets: Targets | None = None) -> lis
         )
     if mine.step_lag_frames is not None and mine.step_lag_frames > tg.step_lag_frames:
         misses.append(f"{name}: step lag {mine.step_lag_frames} frames > {tg.step_lag_frames}")
+    if result.mixed_ok:
+        misses.append(
+            f"{name}: {result.mixed_ok} of {result.mixed_frames} readings of two surfaces "
+            "at an edge published ok"
+        )
     if mine.lux_ok is not None and mine.lux_ok < tg.lux_ok:
         misses.append(
             f"{name}: lux within {LUX_REL_TOL:.0%} or {LUX_ABS_TOL_LUX / 1000:g} klux on "
@@ -532,7 +573,8 @@ def format_table(report: EvalReport, targets: Targets | None = None) -> str:
         lines.append(
             f"== {res.scenario} / {res.world} / seed {res.seed}: {res.n_frames} frames at "
             f"{res.rate_hz:g} Hz, {res.n_steps} steps; lunad / oracle {_fmt(res.vs_oracle)}"
-            f" (oracle q {res.oracle_q:.2g} m^2/s^3), lunad / median5 {_fmt(res.vs_median5)}"
+            f" (oracle q {res.oracle_q:.2g} m^2/s^3), lunad / median5 {_fmt(res.vs_median5)};"
+            f" {res.mixed_frames} edge readings, {res.mixed_ok} published ok"
         )
         lines.append(head)
         for m in res.methods:

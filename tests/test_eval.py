@@ -60,10 +60,57 @@ def test_the_targets_can_fail() -> None:
         2.0,
         1.5,
         tuple(ev.MethodResult(m, 0.01, 1.0, 0.5, 0.02, 3, 9, 0.5, 0.0) for m in ev.METHODS),
+        mixed_frames=4,
+        mixed_ok=1,
     )
     text = " ".join(ev.check_targets(lagging))
-    for words in ("oracle", "median5", "2-sigma", "5 sigma", "0.3 m off", "step lag", "lux"):
+    words_of_each_target = (
+        "oracle",
+        "median5",
+        "2-sigma",
+        "5 sigma",
+        "0.3 m off",
+        "step lag",
+        "lux",
+        "1 of 4 readings of two surfaces",
+    )
+    for words in words_of_each_target:
         assert words in text
+
+
+@pytest.mark.parametrize("world", ev.WORLDS)
+def test_readings_at_an_edge_mix_both_surfaces_and_are_never_published_ok(world: str) -> None:
+    """The two readings after each distance step see both surfaces (sim/edges.py): their
+    distance lies between the two, the truth stays the new surface, and lunad publishes
+    none of them ``ok``."""
+    scenario = load_scenario("alternating").with_duration(3.0)
+    run = ev.simulate(scenario, world, 1.0, 0)
+    steps = scenario.step_frames()
+    mixed = [i for i, m in enumerate(run.mixed) if m]
+    assert mixed and set(mixed) <= {f + k for f in steps for k in range(2)}
+    for i in mixed:
+        step = max(f for f in steps if f <= i)
+        old, new = run.truth[step - 1].distance_m, run.truth[i].distance_m
+        z = run.raw_m[i]
+        assert z is not None
+        assert min(old, new) + 0.05 < z < max(old, new) - 0.05  # of neither surface
+    res = ev.evaluate_run(scenario, run, world)
+    assert res.mixed_frames == len(mixed)
+    assert res.mixed_ok == 0
+
+
+def test_a_mixed_truth_weighs_each_surface_by_the_light_it_returns() -> None:
+    from lunad.sim.edges import mixed_truth
+    from lunad.sim.physics import RealisticSensor, Truth
+
+    sensor = RealisticSensor()
+    near, far = Truth(1.0, 0.9, 0.0, 300.0), Truth(5.0, 0.9, 0.0, 300.0)
+    half = mixed_truth(sensor.amp_of, near, far, 0.5)
+    # the near surface returns 25x the light of the far one: the mix sits near it
+    assert half.distance_m == pytest.approx((25 * 1.0 + 5.0) / 26)
+    assert sensor.amp_of(half) == pytest.approx(0.5 * (sensor.amp_of(near) + sensor.amp_of(far)))
+    assert half.lux == far.lux
+    assert mixed_truth(sensor.amp_of, near, far, 0.0).distance_m == pytest.approx(5.0)
 
 
 def test_lunad_follows_a_step_and_keeps_its_sigma_honest_on_still_scenes() -> None:
