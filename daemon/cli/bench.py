@@ -31,8 +31,19 @@ Measure lunad on this machine and print the figures.
 
 The machine should be otherwise quiet; the serve figures are medians over --rounds.
 
+--filter-against REV runs only one comparison instead: RangeFilter.step of this
+checkout's filters/ (the work tree, uncommitted edits included) against filters/ of
+git revision REV, with today's sim and protocol around both. Both run on the same
+frames (room_sweep, sun_ramp, static, wall_drive, obstacles in both worlds, seed 0),
+each in its own process, alternating for --rounds rounds (default 5), best of 7
+passes each: ns per frame per round and the median of today / old, judged against
+<= 1.2x; and Python bytecodes per frame, which the host's load does not move. It
+needs git and lunad installed from a git checkout (pip install -e).
+
 Exit codes: 0 when every run worked (a missed target is reported, not an error); 1
-when a serve run failed; 2 for a bad option; 128 + the signal's number (130 for
+when a serve run or a --filter-against child failed; 2 for a bad option; 69 when
+--filter-against has no git or no git checkout to read; 78 for a --filter-against
+revision that names no commit with filters/; 128 + the signal's number (130 for
 Ctrl-C, 143 for SIGTERM) when stopped early, with every process it started stopped.
 """
 
@@ -43,6 +54,9 @@ examples:
   lunad bench --format json > bench.json
   lunad bench --rounds 5 --duration 20
   lunad bench --pin                   # process under test alone on the last CPU
+  lunad bench --filter-against ab60136
+                                      # today's filter against the one at ab60136
+  lunad bench --filter-against HEAD~1 --rounds 3 --format json
   python -m lunad.daemon.tools.bench --device /dev/serial0 --publish tcp://127.0.0.1:7790
                                       # the floor loop alone
 """
@@ -66,7 +80,11 @@ def add_parser(sub: Any) -> None:
         help="steady window of each serve run, seconds (default 12; --quick 2)",
     )
     p.add_argument(
-        "--rounds", type=int, metavar="N", help="serve rounds, alternating (default 3; --quick 1)"
+        "--rounds",
+        type=int,
+        metavar="N",
+        help="serve rounds, or --filter-against rounds, alternating (default 3, "
+        "--filter-against 5; --quick 1)",
     )
     p.add_argument(
         "--publish-hz",
@@ -81,6 +99,12 @@ def add_parser(sub: Any) -> None:
         help="run the process under test on the last CPU and the sensor and subscriber on "
         "the others: steadier ratios on a shared machine (needs 2 CPUs or more)",
     )
+    p.add_argument(
+        "--filter-against",
+        metavar="REV",
+        help="only compare RangeFilter.step with the filter at git revision REV "
+        "(a hash, tag, HEAD~1): ns and bytecodes per frame, target <= 1.2x",
+    )
     p.set_defaults(func=run)
 
 
@@ -90,6 +114,8 @@ def run(args: argparse.Namespace) -> int:
     from lunad.daemon.tools import bench
 
     quick = bool(args.quick)
+    if args.filter_against is not None:
+        return _run_filter(args, quick)
     duration = args.duration if args.duration is not None else (2.0 if quick else 12.0)
     rounds = args.rounds if args.rounds is not None else (1 if quick else 3)
     if duration <= 0 or rounds < 1:
@@ -160,3 +186,53 @@ def _run(
     for r in failed_runs:
         log.error("%s run exited %s:\n%s", r.variant, r.exit_code, r.log_tail)
     return 1 if failed_runs else 0
+
+
+def _run_filter(args: argparse.Namespace, quick: bool) -> int:
+    """``--filter-against REV``: this one comparison, printed; 0 when it ran (a missed
+    target is reported, not an error)."""
+    import dataclasses
+    import json
+    import logging
+
+    from lunad.daemon.cli.signals import Interrupts
+    from lunad.daemon.errors import EX_CONFIG, EX_UNAVAILABLE
+    from lunad.daemon.tools.bench import filter_cost
+
+    prog = "lunad bench"
+    if args.duration is not None or args.pin:
+        print(
+            f"{prog}: --duration and --pin are for the serve runs, not --filter-against",
+            file=sys.stderr,
+        )
+        return 2
+    rounds = args.rounds if args.rounds is not None else (1 if quick else filter_cost.ROUNDS)
+    if rounds < 1:
+        print(f"{prog}: --rounds must be >= 1", file=sys.stderr)
+        return 2
+    interrupts = Interrupts(signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+    log = logging.getLogger("lunad.bench")
+    try:
+        cost = filter_cost.compare(args.filter_against, rounds=rounds, progress=log.info)
+    except KeyboardInterrupt:  # subprocess.run has killed its child; the files are gone
+        return interrupts.exit_code(prog)
+    except filter_cost.GitUnavailable as exc:
+        print(f"{prog}: --filter-against: {exc}", file=sys.stderr)
+        return EX_UNAVAILABLE
+    except filter_cost.UnknownRevision as exc:
+        print(f"{prog}: --filter-against: {exc}", file=sys.stderr)
+        return EX_CONFIG
+    except filter_cost.FilterCostError as exc:
+        print(f"{prog}: --filter-against: {exc}", file=sys.stderr)
+        return 1
+    if args.format == "json":
+        doc = {
+            **dataclasses.asdict(cost),
+            "bytecode_ratio": cost.bytecode_ratio,
+            "target_ratio_max": filter_cost.RATIO_MAX,
+            "met": cost.met,
+        }
+        print(json.dumps(doc, indent=2))
+    else:
+        print(filter_cost.format(cost))
+    return 0

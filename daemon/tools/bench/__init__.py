@@ -3,12 +3,14 @@
 ``bulk`` and ``pipeline`` time the pure work (decode; parse, filter, encode), ``rounds``
 runs ``lunad serve`` against the ``floor`` (the least any Python program can spend on
 the job) with the ``receiver`` timing every message and ``measure`` reading ``/proc``;
-``report`` holds the targets and prints the table. ``python -m lunad.daemon.tools.bench``
+``report`` holds the targets and prints the table; ``filter_cost`` times the filter
+against another revision's (``--filter-against``). ``python -m lunad.daemon.tools.bench``
 runs the floor (``receive``: the receiver); every module imports only the standard
 library at the top, so that the floor's RSS and start-up stay its own.
 """
 
 from lunad.daemon.tools.bench.bulk import BulkResult, bench_bulk, synthetic_stream
+from lunad.daemon.tools.bench.filter_cost import FilterCost, FilterCostError, compare
 from lunad.daemon.tools.bench.floor import FLOOR_TOPIC, OUTPUT_ON, floor_main
 from lunad.daemon.tools.bench.measure import (
     cpu_split,
@@ -46,6 +48,8 @@ __all__ = [
     "SENSOR_HZ",
     "TARGETS",
     "BulkResult",
+    "FilterCost",
+    "FilterCostError",
     "PipelineResult",
     "ServeRun",
     "ServeSummary",
@@ -53,6 +57,7 @@ __all__ = [
     "bench_message",
     "bench_pipeline",
     "bench_serve",
+    "compare",
     "cpu_split",
     "cpu_ticks",
     "floor_main",
