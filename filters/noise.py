@@ -85,8 +85,9 @@ it were this many readings, and is a running mean from there until it spans
 ``noise_frames``: a sensor quieter or noisier than the prior gets its own sigma within
 a few dozen readings instead of after the fast average's full span (at the start
 and after a reconnect). A third of the default span: a prior that is right is
-not thrown away on the first noisy samples. ``lunad eval``, three seeds: 44 missed
-targets against 48 with the plain average (docs/filter.md)."""
+not thrown away on the first noisy samples. ``lunad eval``, three seeds, on its runs
+without edge readings: 44 missed targets against 48 with the plain average
+(docs/filter.md)."""
 SLOW_RESTART_SPANS = 2
 """A slow average that starts again (the light changed) starts from the fast one and
 counts it as this many spans of ``noise_frames`` readings: an average over N readings
@@ -94,12 +95,12 @@ with weight 1/N scatters like a plain mean of about 2N. From there it is a runni
 mean (weight 1/n for its n-th reading) until it spans ``noise_slow_frames``, so it
 settles as fast as its readings allow instead of creeping at the slow weight: after a
 change of light its lux figure was within 30 % on 94 % of settled frames instead of
-90 % (``lunad eval``, three seeds, docs/filter.md)."""
+90 % (``lunad eval``, three seeds, on its runs without edge readings; docs/filter.md)."""
 SLOW_RISE_RATIO = 1.3
 """The slow average starts again from the noise floor when the floor (a lower envelope:
 clutter cannot lift it) rises this far above it: the light rose. About two of the
-floor's own scatter; 1.2 read the floor's scatter as light, and the old 1.7 waited
-for a cloud's edge to be two-thirds past."""
+floor's own scatter; 1.2 read the floor's scatter as light, and 1.7 (the fall's
+``noise_jump_ratio``) waited for a cloud's edge to be two-thirds past."""
 
 MAX_GAP_FRAMES = 3
 """Frame counts between the readings of one second difference: 1 (consecutive) up to
