@@ -31,15 +31,17 @@ Evaluate lunad's adaptive filter against truth on simulated scenarios.
 
 Each scenario is drawn (seeded) from two sensor physics lunad is not told about:
 "paper" (the paper's law, sigma = (sigma0 + k L) / S) and "shot" (shot noise with
-its own constants). Every run is fed, frame by frame, to: the raw readings, a
-5-sample median, lunad's filter (the daemon's exact code) and an oracle: an
-independent Kalman filter told each reading's true noise, with its process noise
-chosen in hindsight for that run. Per run: lunad's RMSE over the oracle's and the
-median's (on frames both published), then per method: RMSE away from steps (cm),
-coverage (% of frames with an estimate), 2- and 5-sigma coverage (%), bad outputs
-(more than 30 cm off after the first three frames of a step), the worst step lag
-(frames), and for lunad the share of settled lux figures within 30 % or 2 klux and
-of null ones. Last, the cost of one RangeFilter.step and the targets missed."""
+its own constants); in both, the two readings after each distance step see both
+surfaces at once (an edge: a reading of neither). Every run is fed, frame by frame,
+to: the raw readings, a 5-sample median, lunad's filter (the daemon's exact code)
+and an oracle: an independent Kalman filter told each reading's true noise, with its
+process noise chosen in hindsight for that run. Per run: lunad's RMSE over the
+oracle's and the median's (on frames both published), then per method: RMSE away
+from steps (cm), coverage (% of frames with an estimate), 2- and 5-sigma coverage
+(%), bad outputs (more than 30 cm off after the first three frames of a step), the
+worst step lag (frames), and for lunad the share of settled lux figures within 30 %
+or 2 klux and of null ones, and how many edge readings it published ok (none is the
+target). Last, the cost of one RangeFilter.step and the targets missed."""
 
 _EPILOG = """\
 examples:
