@@ -63,6 +63,14 @@ RUN_GAP_MAX = 2
 sit between two outliers of one run: a marginal target, weak every other frame, still
 confirms its step; two spikes 0.3 s apart, dropouts between them, stay two spikes."""
 
+EDGE_RUN = 3
+"""Outliers in a row on one side of the track, each further from it than the one
+before, that restart the track at the latest of them: the beam crossing an edge, whose
+first readings mix the two surfaces (sim/edges.py) and so agree with neither each
+other nor the track, which ``step_confirm`` needs. The restart's frame is published
+``degraded`` (``outlier``) with the reading's own sigma until a reading confirms it.
+``lunad eval``, three seeds: every step followed within 2 frames instead of 3."""
+
 DRIFT_SPAN = 5
 """The slow innovation mean (``drift``) spans this many times ``manoeuvre_frames``
 readings: it sees a bias too small for the fast test (a third of a noisy reading's
@@ -89,6 +97,9 @@ _DROPOUT = Status.DROPOUT
 _UNRELIABLE = Zone.UNRELIABLE
 _INF = float("inf")
 _INV_MIN_STATS_BIAS = 1.0 / MIN_STATS_BIAS
+_UNCONFIRMED = 1e-12
+"""The outlier innovation, metres, of a frame that restarted the track on one reading
+(``EDGE_RUN``): published as an outlier is, ``degraded``, with no cover to add."""
 _new = tuple.__new__
 """Builds an ``Estimate`` from a tuple without the ``NamedTuple``'s generated Python
 ``__new__``: one C call instead of a Python frame, on every frame."""
@@ -146,6 +157,7 @@ class RangeFilter:
         "_qa_hi",
         "_qa_lo",
         "_rise",
+        "_run_away",
         "_run_gap",
         "_run_last",
         "_run_n",
@@ -255,7 +267,7 @@ class RangeFilter:
         self._hold = 0
         self.man_mean = self.drift = self.extra = 0.0
         self.man_power = 1.0
-        self._run_n = 0
+        self._run_n = self._run_away = 0
         self._run_sum = self._run_rsum = self._run_last = self._run_r = 0.0
         self._run_sign = False
         self._run_gap = 0
@@ -420,21 +432,32 @@ class RangeFilter:
                     sign = e > 0.0
                     d = z - self._run_last
                     n = self._run_n
+                    away = self._run_away
                     if n and sign == self._run_sign and d * d <= self._gate2 * (r + self._run_r):
                         n += 1
                         self._run_sum += z
                         self._run_rsum += r
+                        away = 0
                     else:
+                        if n and sign == self._run_sign and (d > 0.0) == sign:
+                            away = (away or 1) + 1  # each further off than the last
+                        else:
+                            away = 0
                         n = 1
                         self._run_sum = z
                         self._run_rsum = r
                         self._run_sign = sign
+                    self._run_away = away
                     self._run_last = z
                     self._run_r = r
                     self._run_gap = 0
                     if n >= self._confirm:
                         self._start(self._run_sum / n, self._run_rsum / (n * n))
                         self._last_accept_ns = t
+                    elif away >= EDGE_RUN:  # an edge crossed: start at the latest reading
+                        self._start(z, r)
+                        self._last_accept_ns = t
+                        outlier_e = _UNCONFIRMED
                     else:
                         self._run_n = n
                         self.x = x

@@ -125,6 +125,29 @@ def test_real_step_is_followed_within_two_frames() -> None:
     assert all(abs(e.range_m - 1.2) < 0.05 for e in after[1:])
 
 
+def test_an_edge_is_followed_from_its_first_clean_reading_never_publishing_a_mixed_one() -> None:
+    """A dark object at 1 m leaves the beam for a white wall at 5 m: the first two
+    readings mix both surfaces (1.72 and 2.92 m, as sim/edges.py draws them) and agree
+    with nothing, so no two outliers confirm a step until the second clean reading.
+    Three outliers each further off than the last are an edge: the track starts at
+    the third, ``degraded`` until a reading agrees, then ``ok``."""
+    flt = RangeFilter()
+    feed(flt, noisy(random.Random(5), 1.0, 650, 250), 650)
+    mixed = [
+        flt.step(z, amp, (250 + k) * FRAME_NS)
+        for k, (z, amp) in enumerate([(1.72, 513), (2.92, 412)])
+    ]
+    assert all(e.status is not Status.OK for e in mixed)
+    assert all(e.range_m is None or abs(e.range_m - 1.0) < 0.05 for e in mixed)
+    first = flt.step(4.90, 280, 252 * FRAME_NS)
+    assert first.status is Status.DEGRADED and Reason.OUTLIER in first.reasons
+    assert first.range_m == pytest.approx(4.90)
+    assert first.sigma_m == pytest.approx(sigma_of(280), rel=0.5)
+    second = flt.step(4.99, 290, 253 * FRAME_NS)
+    assert second.range_m is not None and abs(second.range_m - 4.95) < 0.06
+    assert Reason.OUTLIER not in second.reasons
+
+
 def test_stale_after_no_accepted_reading() -> None:
     flt = RangeFilter(FilterConfig(stale_after_s=0.1))
     feed(flt, [2.0] * 10, 1800)
