@@ -333,7 +333,11 @@ class RangeFilter:
                 else:
                     out = raw_m < self._min_m or raw_m > self._max_m
                 self.out_of_range = out
-                if amp >= self._amp_strong and self._min_m <= raw_m <= self._max_feed:
+                # Not weak and not out imply both (their hysteresis bands lie inside):
+                # the common frame pays for neither bound.
+                if (not weak or amp >= self._amp_strong) and (
+                    not out or self._min_m <= raw_m <= self._max_feed
+                ):
                     z = raw_m
                 if out:
                     close = raw_m < self._mid_m
@@ -362,7 +366,7 @@ class RangeFilter:
                 self._z2 = z1
                 if z2 is not None:
                     g2 = self._gap_prev
-                    if g1 == 1 and g2 == 1:
+                    if g1 + g2 == 2:  # consecutive (each is at least 1)
                         d = z - 2.0 * z1 + z2
                     else:
                         d = ((z - z1) / g1 - (z1 - z2) / g2) * GAP_NORMALISERS[g1][g2]
