@@ -523,9 +523,11 @@ class Publisher:
         it, under ``_peers_lock``."""
         self._last_charge_ns: int | None = None
         self._penalties: dict[str, int] = {}
-        self._ipc_charges: dict[bytes, int] = {}  # ZAP user id: foreign bytes (ipc)
-        self._zap_requests = 0
         """Where floods came from -> until when (monotonic ns) its connections are refused."""
+        self._ipc_charges: dict[bytes, int] = {}
+        """ZAP user id of an ipc connection -> bytes of subscriptions to topics the daemon
+        does not publish that it sent (``_charge_ipc``); at most ``PENALTIES_MAX``."""
+        self._zap_requests = 0  # handshakes answered: numbers each connection's user id
         self._peers_lock = threading.Lock()
         self._next_sweep_ns = 0
         self._wake: Callable[[], None] | None = None
