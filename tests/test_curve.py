@@ -597,3 +597,16 @@ def test_lunad_watch_reads_a_curve_endpoint_with_its_keys(
     )  # fmt: skip
     assert half.returncode == 2
     assert "--curve-server-key and --curve-client-key go together" in half.stderr
+
+
+def test_key_files_read_as_zmq_auth_reads_them(tmp_path: Path) -> None:
+    """``read_key_file`` parses the ZPL text itself (it reads the file it opened, so a
+    path swapped for a FIFO after the check cannot block it): on the files
+    ``zmq.auth.create_certificates`` writes it finds what ``load_certificate`` finds."""
+    import zmq.auth
+
+    from lunad.protocol.curve_keys import read_key_file
+
+    public_file, secret_file = zmq.auth.create_certificates(tmp_path, "peer")
+    assert read_key_file(public_file) == zmq.auth.load_certificate(public_file)
+    assert read_key_file(secret_file, secret=True) == zmq.auth.load_certificate(secret_file)
