@@ -204,11 +204,6 @@ def run_serve_once(
         idle_cpu_s, idle_wakeups = (i1[0] - i0[0]) / 1e9, float(i1[1] - i0[1])
     else:
         idle_cpu_s, idle_wakeups = (ic1 - ic0) / hz, float("nan")
-    idle_window_s = (it1 - it0) / 1e9
-    if i0 is not None and i1 is not None:
-        idle_cpu_s, idle_wakeups = (i1[0] - i0[0]) / 1e9, float(i1[1] - i0[1])
-    else:
-        idle_cpu_s, idle_wakeups = (ic1 - ic0) / hz, float("nan")
     records = array.array("q")
     with open(out_path, "rb") as f:
         records.frombytes(f.read())
