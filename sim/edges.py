@@ -15,11 +15,16 @@ reflectivity at normal incidence) and the light of the surface the beam moves to
 each world draws its own noise for the amp the mixed reading has. The truth to judge
 an estimate against stays the beam centre's surface (the new one): a mixed reading is
 an error of the sensor, which the filter should not publish as good.
+
+``edge_view`` applies it to a scenario in time, for ``lunad eval`` and the virtual
+sensor alike: the readings drawn within ``EDGE_READING_S`` per share after a distance
+jump see both surfaces.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from bisect import bisect_right
+from collections.abc import Callable, Sequence
 
 from lunad.sim.physics import Truth
 
@@ -28,6 +33,11 @@ EDGE_OLD_SHARES = (2.0 / 3.0, 1.0 / 3.0)
 a distance step, one entry per reading (our choice: two readings, as a beam 2 degrees
 wide crossing an edge at a robot's turning speed of about 90 deg/s blends for 20 ms,
 5 frames at 250 Hz, of which the middle ones mix most)."""
+EDGE_READING_S = 0.004
+"""Time after a jump each entry of ``EDGE_OLD_SHARES`` lasts, seconds: one reading at
+250 Hz, the rate the built-in scenarios run at. At another rate a reading takes the
+share of the moment it is drawn: the blend is the beam's, not the sensor's."""
+JUST_BEFORE_S = 1e-6  # how long before a jump the surface it leaves is looked up
 MIN_EDGE_M = 0.05
 """Steps in distance smaller than this, metres, are not edges: the two surfaces lie
 within the sensor's own noise of each other."""
@@ -58,3 +68,42 @@ def mixed_truth(
     if unit <= 0.0:
         return new
     return Truth(distance, total / unit, 0.0, new.lux)
+
+
+def edge_view(
+    step_times_s: Sequence[float],
+    truth_at: Callable[[float], Truth],
+    amp_of: Callable[[Truth], float],
+    length_s: float | None = None,
+) -> Callable[[float, Truth], Truth]:
+    """What the beam sees at a time, given the truth then: the truth itself, or within
+    ``len(EDGE_OLD_SHARES) * EDGE_READING_S`` after a distance jump of ``MIN_EDGE_M`` or
+    more, the ``mixed_truth`` of the surfaces before and after it.
+
+    Args:
+        step_times_s: the instants the distance jumps (``Scenario.step_times_s``).
+        truth_at: the truth at a time, seconds (``Scenario.truth_at``).
+        amp_of: the world's amp for a truth.
+        length_s: a scenario played in a loop: times are taken modulo this.
+
+    Returns:
+        ``view(t_s, truth)``, which returns ``truth`` itself (the same object) when the
+        beam sees a single surface.
+    """
+    steps = tuple(sorted(step_times_s))
+    span = len(EDGE_OLD_SHARES)
+
+    def view(t_s: float, truth: Truth) -> Truth:
+        t = t_s % length_s if length_s else t_s
+        i = bisect_right(steps, t + 1e-9) - 1  # a frame drawn at the jump's instant sees it
+        if i < 0:
+            return truth
+        k = int((t - steps[i]) / EDGE_READING_S + 1e-6)
+        if k >= span:
+            return truth
+        old = truth_at(steps[i] - JUST_BEFORE_S)
+        if abs(old.distance_m - truth.distance_m) < MIN_EDGE_M:
+            return truth
+        return mixed_truth(amp_of, old, truth, EDGE_OLD_SHARES[k])
+
+    return view

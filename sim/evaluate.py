@@ -56,7 +56,7 @@ from typing import Protocol
 
 from lunad.filters import FilterConfig, RangeFilter
 from lunad.filters.estimate import Status
-from lunad.sim.edges import EDGE_OLD_SHARES, MIN_EDGE_M, mixed_truth
+from lunad.sim.edges import edge_view
 from lunad.sim.oracle import tuned_oracle
 from lunad.sim.physics import AMP_AMBIENT, AMP_WEAK, RawReading, RealisticSensor, Truth
 from lunad.sim.scenario import Scenario
@@ -205,24 +205,16 @@ def simulate(
     after each distance step see both surfaces (edges.py)."""
     sensor = make_sensor(world, noise_scale)
     rng = random.Random(f"{seed}:{scenario.name}")
-    edge_of: dict[int, tuple[int, int]] = {}  # frame: (its step's frame, readings since)
-    for f in scenario.step_frames():
-        for k in range(len(EDGE_OLD_SHARES)):
-            edge_of.setdefault(f + k, (f, k))
+    view = edge_view(scenario.step_times_s, scenario.truth_at, sensor.amp_of)
     truth: list[Truth] = []
     raw_m: list[float | None] = []
     amps: list[int] = []
     t_ns: list[int] = []
     sigmas: list[float | None] = []
     mixed: list[bool] = []
-    for i, t in enumerate(scenario.frame_times()):
+    for t in scenario.frame_times():
         tr = scenario.truth_at(t)
-        seen = tr
-        edge = edge_of.get(i)
-        if edge is not None and edge[0] > 0:
-            old = truth[edge[0] - 1]
-            if abs(old.distance_m - tr.distance_m) >= MIN_EDGE_M:
-                seen = mixed_truth(sensor.amp_of, old, tr, EDGE_OLD_SHARES[edge[1]])
+        seen = view(t, tr)
         rd = sensor.sample(seen, rng)
         truth.append(tr)
         raw_m.append(rd.dist_cm * 0.01 if rd.dist_cm else None)

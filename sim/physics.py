@@ -128,6 +128,12 @@ class PaperSensor:
         self.k_m_per_lux = k_m_per_lux
         self.amp_ref = amp_ref
 
+    def amp_of(self, truth: Truth) -> float:
+        """Received signal before the sensor's limits: amp_ref R cos(theta) (eq. 1; the
+        paper's S does not fall with distance)."""
+        s = truth.reflectivity * math.cos(math.radians(truth.angle_deg))
+        return self.amp_ref * s if s > 0.0 else 0.0
+
     def sample(self, truth: Truth, rng: random.Random, amp_threshold: int = AMP_WEAK) -> RawReading:
         """Draw one reading for ``truth`` using ``rng``.
 

@@ -93,6 +93,9 @@ class PtyDevice:
         on_error: called from the device thread with the exception that is about to
             end it (``close`` raises it again as ``DeviceError``); lets a caller
             waiting on something else stop at once.
+        view: what the beam sees at a time given the truth then (``sim.edges.edge_view``:
+            both surfaces just after a jump); the model draws from it, ``truth_out``
+            logs the truth. None: the truth itself.
 
     Use as a context manager: ``with PtyDevice(...) as dev: serve(dev.path)``.
     """
@@ -112,10 +115,12 @@ class PtyDevice:
         on_frame_sent: Callable[[int, int], None] | None = None,
         on_bytes_written: Callable[[bytes, list[int], int], None] | None = None,
         on_error: Callable[[BaseException], None] | None = None,
+        view: Callable[[float, Truth], Truth] | None = None,
     ) -> None:
         fixed = truth if isinstance(truth, Truth) else Truth()
         self._truth: Callable[[float], Truth] = truth if callable(truth) else (lambda _t: fixed)
         self.model: SensorModel = model or PaperSensor()
+        self._view = view
         self.link = Path(link) if link else default_link()
         self.sensor = VirtualSensor(Settings(rate_hz=rate_hz, output_enabled=output_enabled))
         self.rng = random.Random(seed)
@@ -312,7 +317,8 @@ class PtyDevice:
     def _emit_frame(self) -> None:
         t = time.monotonic() - self._t0
         truth = self._truth(t)
-        reading = self.model.sample(truth, self.rng, self.sensor.settings.amp_threshold)
+        seen = truth if self._view is None else self._view(t, truth)
+        reading = self.model.sample(seen, self.rng, self.sensor.settings.amp_threshold)
         dist_cm = reading.dist_cm or None  # RawReading: 0 means no distance
         frame = self.sensor.data_frame(dist_cm, reading.amp, self.temp_raw)
         if frame is None:

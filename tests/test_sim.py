@@ -284,3 +284,36 @@ def test_amp_threshold_command_moves_the_weak_signal_cut(
         raised = triggered()
     assert lowered.amp == 80 and 100 <= lowered.dist <= 300
     assert raised[:2] == (500, 80)
+
+
+def test_a_scenario_played_on_the_pty_mixes_both_surfaces_at_each_edge(
+    device: Callable[..., PtyDevice],
+) -> None:
+    """``lunad sim`` and ``lunad demo`` give the device the scenario's edges
+    (``sim.edges.edge_view``): the readings just after each jump between a dark object
+    at 1 m and a white wall at 5 m lie between the two, while ``truth_out`` logs only
+    the surface at the beam's centre."""
+    import io
+
+    from lunad.sim.edges import edge_view
+    from lunad.sim.scenario import load_scenario
+
+    scenario = load_scenario("alternating")
+    model = RealisticSensor(spike_probability=0.0)  # only the edges fall between
+    length = scenario.duration_s
+    log = io.StringIO()
+    dev = device(
+        truth=lambda t: scenario.truth_at(t % length),
+        model=model,
+        view=edge_view(scenario.step_times_s, scenario.truth_at, model.amp_of, length),
+        rate_hz=250,
+        truth_out=log,
+    )
+    with serial.serial_for_url(dev.path, 115200, timeout=0.05, exclusive=True) as ser:
+        parser = FrameParser()
+        got = frames(read_until(ser, parser, lambda items: len(frames(items)) >= 600))
+    dev.close()
+    between = [f.distance_m for f in got if f.distance_m is not None and 1.3 < f.distance_m < 4.5]
+    assert len(between) >= 3, "each jump (every 0.5 s) gives readings of neither surface"
+    logged = {round(float(row.split(",")[1]), 2) for row in log.getvalue().splitlines()}
+    assert logged <= {1.0, 5.0}

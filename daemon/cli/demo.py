@@ -85,15 +85,19 @@ def _run(args: argparse.Namespace, scenario: Scenario, interrupts: Interrupts) -
     arriving while either starts waits for the ``finally`` that stops it.
     """
     from lunad.daemon.cli.watch import watch
+    from lunad.sim.edges import edge_view
     from lunad.sim.physics import RealisticSensor
     from lunad.sim.pty_device import DeviceError, PtyDevice
 
     with tempfile.TemporaryDirectory(prefix="lunad-demo-") as tmp:
         link = Path(tmp) / "tfluna"
         endpoint = f"ipc://{tmp}/lunad.sock"
+        model = RealisticSensor()
+        length = scenario.duration_s
         dev = PtyDevice(
-            lambda t: scenario.truth_at(t % scenario.duration_s),
-            model=RealisticSensor(),
+            lambda t: scenario.truth_at(t % length),
+            model=model,
+            view=edge_view(scenario.step_times_s, scenario.truth_at, model.amp_of, length),
             rate_hz=args.rate,
             link=link,
             seed=1,

@@ -22,7 +22,9 @@ cm/mm format, save, restore, reset) are answered as the sensor does. Readings
 follow a sensor model: `realistic` (default: amp falls with distance squared,
 datasheet repeatability, ambient light, saturation, rare multipath spikes) or
 `paper` (the paper's equations 1-3 literally). Both apply the sensor's own rules
-(amp < 100 reports 0, 1 cm steps). A scenario makes the truth change over time.
+(amp < 100 reports 0, 1 cm steps). A scenario makes the truth change over time;
+for 8 ms after each jump in distance the beam sees both surfaces, and the readings
+mix them (an edge: --truth-out still logs the surface at the beam's centre).
 """
 
 EPILOG = """\
@@ -157,10 +159,19 @@ def run(args: argparse.Namespace) -> int:
         return 2
     model = RealisticSensor(args.noise_scale) if args.profile == "realistic" else PaperSensor()
     truth: Truth | Callable[[float], Truth]
+    view = None
     duration = args.duration
     if scenario is not None:
+        from lunad.sim.edges import edge_view
+
         length = scenario.duration_s
         truth = (lambda t: scenario.truth_at(t % length)) if args.loop else scenario.truth_at
+        view = edge_view(
+            scenario.step_times_s,
+            scenario.truth_at,
+            model.amp_of,
+            length if args.loop else None,
+        )
         if duration is None and not args.loop:
             duration = length
     else:
@@ -189,6 +200,7 @@ def run(args: argparse.Namespace) -> int:
             corrupt_rate=args.corrupt_rate,
             truth_out=out,
             on_error=lambda _exc: done.set(),
+            view=view,
         )
         try:
             dev.start()
