@@ -156,7 +156,6 @@ class RangeFilter:
         "_q_m2",
         "_qa_hi",
         "_qa_lo",
-        "_rise",
         "_run_away",
         "_run_gap",
         "_run_last",
@@ -248,7 +247,6 @@ class RangeFilter:
         self._fast_keep = 1.0 / c.noise_frames
         self._slow_keep = 1.0 / c.noise_slow_frames
         self._slow_restart_w = 1.0 / (SLOW_RESTART_SPANS * c.noise_frames)
-        self._rise = SLOW_RISE_RATIO
         self._span_frames = c.noise_frames
         self._jump = c.noise_jump_ratio
         self._obs2 = c.lux_observable_sigma_m * c.lux_observable_sigma_m
@@ -585,7 +583,7 @@ class RangeFilter:
         self._span_k = self._span_frames
         floor = min(mins) * _INV_MIN_STATS_BIAS
         self._learn_below = MIN_STATS_NEAR * floor
-        if floor > self._rise * slow:
+        if floor > SLOW_RISE_RATIO * slow:
             self._slow_w = self._slow_restart_w
             return floor
         return slow

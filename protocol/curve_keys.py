@@ -65,16 +65,12 @@ def read_key_file(path: str | os.PathLike[str], secret: bool = False) -> tuple[b
         kind = file_kind(st.st_mode)
         if kind is not None:
             raise ValueError(f"{path} is {kind}, not a regular file")
-        if st.st_size > MAX_KEY_FILE_BYTES:
-            raise ValueError(
-                f"{path} is larger than {MAX_KEY_FILE_BYTES} bytes; a key file is a few hundred"
-            )
-        text = os.read(fd, MAX_KEY_FILE_BYTES + 1)
+        text = os.read(fd, MAX_KEY_FILE_BYTES + 1)  # one byte more tells a larger file
     except OSError as exc:
         raise ValueError(f"{path} cannot be read: {exc.strerror or exc}") from None
     finally:
         os.close(fd)
-    if len(text) > MAX_KEY_FILE_BYTES:  # it grew since the fstat
+    if len(text) > MAX_KEY_FILE_BYTES:
         raise ValueError(
             f"{path} is larger than {MAX_KEY_FILE_BYTES} bytes; a key file is a few hundred"
         )

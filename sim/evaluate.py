@@ -54,8 +54,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass
 from typing import Protocol
 
-from lunad.filters import FilterConfig, RangeFilter
-from lunad.filters.estimate import Status
+from lunad.filters import FilterConfig, RangeFilter, Status
 from lunad.sim.edges import edge_view
 from lunad.sim.oracle import tuned_oracle
 from lunad.sim.physics import AMP_AMBIENT, AMP_WEAK, RawReading, RealisticSensor, Truth
