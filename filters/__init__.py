@@ -3,7 +3,7 @@
 from lunad.filters.config import AMP_REF_DEFAULT, FilterConfig
 from lunad.filters.estimate import Estimate, Reason, Status, Zone
 from lunad.filters.range_filter import RangeFilter
-from lunad.filters.zone import ZoneClassifier
+from lunad.filters.zone import ZoneClassifier, ZoneLimits
 
 __all__ = [
     "AMP_REF_DEFAULT",
@@ -14,4 +14,5 @@ __all__ = [
     "Status",
     "Zone",
     "ZoneClassifier",
+    "ZoneLimits",
 ]

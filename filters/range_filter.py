@@ -56,7 +56,7 @@ from lunad.filters.noise import (
     winsorised_abs_mean,
 )
 from lunad.filters.policy import band_edge, first_amp_at_least
-from lunad.filters.zone import ZoneClassifier
+from lunad.filters.zone import ZoneLimits
 
 RUN_GAP_MAX = 2
 """Frames that do not feed the filter (no distance, a weak or saturated signal) that may
@@ -94,6 +94,8 @@ _STALE = (Reason.STALE,)
 _OK = Status.OK
 _DEGRADED = Status.DEGRADED
 _DROPOUT = Status.DROPOUT
+_STABLE = Zone.STABLE
+_MARGINAL = Zone.MARGINAL
 _UNRELIABLE = Zone.UNRELIABLE
 _INF = float("inf")
 _INV_MIN_STATS_BIAS = 1.0 / MIN_STATS_BIAS
@@ -113,14 +115,15 @@ class RangeFilter:
     covariance), ``noise_fast`` and ``noise_slow`` (the noise statistic A of
     noise.py, metres), ``c2`` (c^2 from the slow one, m^2), ``lux`` (L_hat, lux, or
     None where it cannot be observed), ``qa`` (the process noise in force, m^2/s^3),
-    ``weak``/``out_of_range``/``ambient`` (policy.py's latches).
+    ``weak``/``out_of_range``/``ambient`` (policy.py's latches), ``zone`` (the last
+    published zone, for zone.py's hysteresis).
     """
 
     __slots__ = (
         "_amp_strong",
         "_amp_strong_again",
         "_c2_floor",
-        "_classify",
+        "_clear",
         "_clip_a",
         "_confirm",
         "_drift_gain",
@@ -178,6 +181,7 @@ class RangeFilter:
         "_v0var",
         "_z1",
         "_z2",
+        "_zone_limits",
         "active",
         "ambient",
         "c2",
@@ -198,7 +202,7 @@ class RangeFilter:
         "v",
         "weak",
         "x",
-        "zones",
+        "zone",
     )
 
     def __init__(self, config: FilterConfig | None = None) -> None:
@@ -251,14 +255,14 @@ class RangeFilter:
         self._jump = c.noise_jump_ratio
         self._obs2 = c.lux_observable_sigma_m * c.lux_observable_sigma_m
         self._c2_floor = 0.01 * c.sigma0_m * c.sigma0_m
-        self.zones = ZoneClassifier(c)
-        self._classify = self.zones.classify  # bound once: it runs on every frame
+        self._zone_limits = ZoneLimits.from_config(c)  # step applies them inline
         self.reset()
 
     def reset(self) -> None:
         """Forget all state (after a reconnect)."""
         c = self.config
         self.weak = self.out_of_range = self.ambient = False
+        self._clear = True
         self.active = False
         self.x = self.v = self.p00 = self.p01 = self.p11 = 0.0
         self.qa = self._qa_lo
@@ -282,7 +286,7 @@ class RangeFilter:
         self._z1: float | None = None
         self._z2: float | None = None
         self._gap = self._gap_prev = 0
-        self.zones.reset()
+        self.zone = _UNRELIABLE
         self._last_t_ns: int | None = None
         self._last_accept_ns = 0
 
@@ -315,12 +319,24 @@ class RangeFilter:
             dt = 0.0
 
         # Gates with hysteresis (policy.py).
-        z: float | None = None  # the reading, when it may feed the filter
+        z: float | None  # the reading, when it may feed the filter
         marginal = False  # a reading in the weak gate's hysteresis band: degraded
         reasons: tuple[Reason, ...]
-        if amp > AMP_AMBIENT:
+        if (  # the common frame: no latch set, strong enough and in range
+            self._clear
+            and raw_m is not None
+            and amp >= self._amp_strong
+            and amp <= AMP_AMBIENT
+            and raw_m >= self._min_m
+            and raw_m <= self._max_m
+        ):
+            z = raw_m
+            reasons = _NONE
+        elif amp > AMP_AMBIENT:
+            z = None
             reasons = _SATURATED if amp == AMP_SATURATED else _AMBIENT
         else:
+            z = None
             weak = amp < (self._amp_strong_again if self.weak else self._amp_strong)
             self.weak = weak
             if raw_m is None:
@@ -348,6 +364,7 @@ class RangeFilter:
                 else:  # weak with a reading: the amp is in the band above the threshold
                     marginal = weak
                     reasons = _NONE
+            self._clear = not weak and not self.out_of_range
 
         outlier_e = 0.0
         active = self.active
@@ -423,9 +440,11 @@ class RangeFilter:
                     p01 = self.p01
                     p11 = self.p11
                     qd = self.qa * dt
+                    qdt = qd * dt
+                    dp = dt * p11
                     x += self.v * dt
-                    p00 += dt * (2.0 * p01 + dt * p11) + qd * dt * dt * (1.0 / 3.0)
-                    self.p01 = p01 + dt * p11 + 0.5 * qd * dt
+                    p00 += dt * (2.0 * p01 + dp) + qdt * dt * (1.0 / 3.0)
+                    self.p01 = p01 + dp + 0.5 * qdt
                     self.p11 = p11 + qd
                 e = z - x
                 sp = p00 + r
@@ -530,7 +549,7 @@ class RangeFilter:
                 reasons = _OUTLIER  # would say "unreliable": the robot gets no figure
         if not reasons and self.active:
             x = self.x
-            if self._min_m <= x <= self._max_m:
+            if x >= self._min_m and x <= self._max_m:
                 var = self.p00
                 if outlier_e:
                     var += 0.25 * outlier_e * outlier_e
@@ -550,9 +569,38 @@ class RangeFilter:
                     else:
                         ambient = self.ambient = lux_out > self._lux_enter
                 if outlier_e:  # the zone describes conditions: the track's own sigma
-                    zone = self._classify(lux_zone, s, max(sqrt(self.p00), self._floor))
+                    zsig = sqrt(self.p00)
+                    if zsig < self._floor:
+                        zsig = self._floor
                 else:
-                    zone = self._classify(lux_zone, s, sigma)
+                    zsig = sigma
+                # The zone, with hysteresis (zone.py: ZoneClassifier.classify).
+                zone = self.zone
+                zl = self._zone_limits
+                if zone is _UNRELIABLE:
+                    if (
+                        lux_zone < zl.lux_unrel_leave
+                        and s >= zl.s_unrel_leave
+                        and zsig <= zl.sig_unrel_leave
+                    ):
+                        zone = self.zone = (
+                            _STABLE
+                            if lux_zone < zl.lux_stable
+                            and s >= zl.s_stable
+                            and zsig <= zl.sig_stable
+                            else _MARGINAL
+                        )
+                elif lux_zone > zl.lux_unrel or s < zl.s_unrel or zsig > zl.sig_unrel:
+                    zone = self.zone = _UNRELIABLE
+                elif zone is _STABLE:
+                    if not (
+                        lux_zone < zl.lux_stable_stay
+                        and s >= zl.s_stable_stay
+                        and zsig <= zl.sig_stable_stay
+                    ):
+                        zone = self.zone = _MARGINAL
+                elif lux_zone < zl.lux_stable and s >= zl.s_stable and zsig <= zl.sig_stable:
+                    zone = self.zone = _STABLE
                 if outlier_e:
                     reasons = _OUTLIER_AMBIENT if ambient else _OUTLIER
                 elif zone is _UNRELIABLE:  # ok only where the paper's model holds
@@ -565,7 +613,7 @@ class RangeFilter:
                     reasons = (Reason.WEAK_SIGNAL, *reasons) if reasons else _WEAK
                 return _new(Estimate, (x, sigma, lux_out, s, _DEGRADED, reasons, zone))
             reasons = _CLOSE if x < self._min_m else _FAR
-        self.zones.zone = _UNRELIABLE
+        self.zone = _UNRELIABLE
         if t - self._last_accept_ns > self._stale_ns:
             reasons = (*reasons, Reason.STALE) if reasons else _STALE
         return _new(Estimate, (None, None, self.lux, s, _DROPOUT, reasons, _UNRELIABLE))

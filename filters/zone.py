@@ -18,6 +18,8 @@ values are beyond its thresholds by the relative band ``zone_hysteresis``.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from lunad.filters.config import FilterConfig
 from lunad.filters.estimate import Zone
 
@@ -26,40 +28,56 @@ _MARGINAL = Zone.MARGINAL
 _UNRELIABLE = Zone.UNRELIABLE
 
 
+@dataclass(frozen=True, slots=True)
+class ZoneLimits:
+    """The thresholds of the zones and of their hysteresis bands (lux, S, metres).
+
+    ``*_stay`` keep a ``stable`` zone, ``*_leave`` let an ``unreliable`` one go; both
+    are the plain thresholds moved outward by ``zone_hysteresis``. ``RangeFilter.step``
+    applies them inline, as :meth:`ZoneClassifier.classify` does.
+    """
+
+    lux_stable: float
+    s_stable: float
+    sig_stable: float
+    lux_stable_stay: float
+    s_stable_stay: float
+    sig_stable_stay: float
+    lux_unrel: float
+    s_unrel: float
+    sig_unrel: float
+    lux_unrel_leave: float
+    s_unrel_leave: float
+    sig_unrel_leave: float
+
+    @classmethod
+    def from_config(cls, config: FilterConfig) -> ZoneLimits:
+        """The limits ``config`` sets."""
+        up = 1.0 + config.zone_hysteresis
+        down = 1.0 - config.zone_hysteresis
+        return cls(
+            lux_stable=config.lux_stable_max,
+            s_stable=config.s_stable_min,
+            sig_stable=config.sigma_stable_max_m,
+            lux_stable_stay=config.lux_stable_max * up,
+            s_stable_stay=config.s_stable_min * down,
+            sig_stable_stay=config.sigma_stable_max_m * up,
+            lux_unrel=config.lux_unreliable,
+            s_unrel=config.s_unreliable,
+            sig_unrel=config.sigma_unreliable_m,
+            lux_unrel_leave=config.lux_unreliable * down,
+            s_unrel_leave=config.s_unreliable * up,
+            sig_unrel_leave=config.sigma_unreliable_m * down,
+        )
+
+
 class ZoneClassifier:
     """Classifies each estimate; remembers the last zone for hysteresis."""
 
-    __slots__ = (
-        "_lux_stable",
-        "_lux_stable_stay",
-        "_lux_unrel",
-        "_lux_unrel_leave",
-        "_s_stable",
-        "_s_stable_stay",
-        "_s_unrel",
-        "_s_unrel_leave",
-        "_sig_stable",
-        "_sig_stable_stay",
-        "_sig_unrel",
-        "_sig_unrel_leave",
-        "zone",
-    )
+    __slots__ = ("limits", "zone")
 
     def __init__(self, config: FilterConfig) -> None:
-        up = 1.0 + config.zone_hysteresis
-        down = 1.0 - config.zone_hysteresis
-        self._lux_stable = config.lux_stable_max
-        self._s_stable = config.s_stable_min
-        self._sig_stable = config.sigma_stable_max_m
-        self._lux_stable_stay = config.lux_stable_max * up
-        self._s_stable_stay = config.s_stable_min * down
-        self._sig_stable_stay = config.sigma_stable_max_m * up
-        self._lux_unrel = config.lux_unreliable
-        self._s_unrel = config.s_unreliable
-        self._sig_unrel = config.sigma_unreliable_m
-        self._lux_unrel_leave = config.lux_unreliable * down
-        self._s_unrel_leave = config.s_unreliable * up
-        self._sig_unrel_leave = config.sigma_unreliable_m * down
+        self.limits = ZoneLimits.from_config(config)
         self.zone = _UNRELIABLE
 
     def reset(self) -> None:
@@ -74,25 +92,26 @@ class ZoneClassifier:
             s: strength S = amp / amp_ref.
             sigma_m: one-sigma uncertainty of the estimate, metres.
         """
+        lim = self.limits
         prev = self.zone
         if prev is _UNRELIABLE:
             if not (
-                lux < self._lux_unrel_leave
-                and s >= self._s_unrel_leave
-                and sigma_m <= self._sig_unrel_leave
+                lux < lim.lux_unrel_leave
+                and s >= lim.s_unrel_leave
+                and sigma_m <= lim.sig_unrel_leave
             ):
                 return _UNRELIABLE
-        elif lux > self._lux_unrel or s < self._s_unrel or sigma_m > self._sig_unrel:
+        elif lux > lim.lux_unrel or s < lim.s_unrel or sigma_m > lim.sig_unrel:
             self.zone = _UNRELIABLE
             return _UNRELIABLE
         if prev is _STABLE:
             stable = (
-                lux < self._lux_stable_stay
-                and s >= self._s_stable_stay
-                and sigma_m <= self._sig_stable_stay
+                lux < lim.lux_stable_stay
+                and s >= lim.s_stable_stay
+                and sigma_m <= lim.sig_stable_stay
             )
         else:
-            stable = lux < self._lux_stable and s >= self._s_stable and sigma_m <= self._sig_stable
+            stable = lux < lim.lux_stable and s >= lim.s_stable and sigma_m <= lim.sig_stable
         zone = _STABLE if stable else _MARGINAL
         self.zone = zone
         return zone

@@ -65,3 +65,45 @@ def test_zone_does_not_flap_on_a_static_indoor_scene() -> None:
     changes = sum(a != b for a, b in itertools.pairwise(zones))
     assert changes <= 2, changes
     assert zones.count("stable") > 0.95 * len(zones)
+
+
+def test_the_filters_inline_zones_are_the_classifiers() -> None:
+    """RangeFilter.step applies the zone rules inline (one call less on every frame);
+    replaying ZoneClassifier on what each frame published must give the same zone, on
+    runs that cross every threshold both ways. An outlier's zone is judged on the
+    track's own sigma (docs/filter.md), which the filter keeps in ``p00``."""
+    import math
+
+    from lunad.filters import RangeFilter, Reason
+    from lunad.sim.evaluate import simulate
+    from lunad.sim.scenario import load_scenario
+
+    config = FilterConfig()
+    runs = [
+        list(zip(run.raw_m, run.amp, run.t_ns, strict=True))
+        for name in ("sun_ramp", "room_sweep", "obstacles", "beyond_range")
+        for world in ("paper", "shot")
+        for run in (simulate(load_scenario(name), world, 1.0, 0),)
+    ]
+    # A strong return, then one weak enough for S < 0.1 (stable straight to unreliable).
+    runs.append([(2.0, 3000 if k < 300 else 150, k * 4_000_000) for k in range(400)])
+    seen: set[tuple[Zone, Zone]] = set()
+    for frames in runs:
+        f = RangeFilter(config)
+        ref = ZoneClassifier(config)
+        for z, amp, t in frames:
+            before = f.zone
+            est = f.step(z, amp, t)
+            if est.range_m is None:
+                assert est.zone is Zone.UNRELIABLE and f.zone is Zone.UNRELIABLE
+                continue
+            assert est.sigma_m is not None
+            sigma = est.sigma_m
+            if Reason.OUTLIER in est.reasons:
+                sigma = max(math.sqrt(f.p00), config.sigma_floor_m)
+            ref.zone = before
+            assert ref.classify(est.lux_est or 0.0, est.strength, sigma) is est.zone
+            assert f.zone is est.zone
+            seen.add((before, est.zone))
+    changes = {(a, b) for a, b in seen if a is not b}
+    assert len(changes) == 6, f"every change between zones must be played: {changes}"
