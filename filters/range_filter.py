@@ -51,6 +51,7 @@ from lunad.filters.noise import (
     MIN_STATS_BIAS,
     MIN_STATS_NEAR,
     MIN_STATS_SPANS,
+    SLOW_EVERY,
     SLOW_RESTART_SPANS,
     SLOW_RISE_RATIO,
     winsorised_abs_mean,
@@ -170,6 +171,7 @@ class RangeFilter:
         "_sigma0",
         "_slow_keep",
         "_slow_restart_w",
+        "_slow_tick",
         "_slow_w",
         "_span_frames",
         "_span_i",
@@ -249,9 +251,10 @@ class RangeFilter:
         self._clip_a = c.noise_clip_sigmas / m1
         self._kA = 1.0 / (6.0 * m1 * m1)
         self._fast_keep = 1.0 / c.noise_frames
-        self._slow_keep = 1.0 / c.noise_slow_frames
-        self._slow_restart_w = 1.0 / (SLOW_RESTART_SPANS * c.noise_frames)
-        self._span_frames = c.noise_frames
+        # The slow side sees one sample in SLOW_EVERY: its weights count readings.
+        self._slow_keep = min(1.0, SLOW_EVERY / c.noise_slow_frames)
+        self._slow_restart_w = min(1.0, SLOW_EVERY / (SLOW_RESTART_SPANS * c.noise_frames))
+        self._span_frames = max(1, round(c.noise_frames / SLOW_EVERY))
         self._jump = c.noise_jump_ratio
         self._obs2 = c.lux_observable_sigma_m * c.lux_observable_sigma_m
         self._c2_floor = 0.01 * c.sigma0_m * c.sigma0_m
@@ -281,7 +284,8 @@ class RangeFilter:
         self._span_mins = [_INF] * MIN_STATS_SPANS
         self._span_min = self._learn_below = _INF  # no floor yet: learn everything
         self._span_i = 0
-        self._span_k = self.config.noise_frames
+        self._span_k = self._span_frames
+        self._slow_tick = SLOW_EVERY
         self.lux: float | None = None
         self._z1: float | None = None
         self._z2: float | None = None
@@ -387,9 +391,6 @@ class RangeFilter:
                         d = ((z - z1) / g1 - (z1 - z2) / g2) * GAP_NORMALISERS[g1][g2]
                     y = (d if d >= 0.0 else -d) * s
                     fast = self.noise_fast
-                    if fast == 0.0:  # the first sample: start from the configured prior
-                        fast = self._m1 * sqrt(6.0 * (self.c2 + self._q_m2 * s2))
-                        self.noise_slow = fast
                     lim = self._clip_a * fast
                     if y > lim:
                         y = lim
@@ -405,31 +406,15 @@ class RangeFilter:
                     if c2 < obs:  # below the output step: not observable,
                         self.lux = None  # and the slow average keeps what it last saw
                     else:
-                        # Minimum statistics (noise.py): the fast average's minimum over
-                        # the last MIN_STATS_SPANS spans is the floor clutter cannot lift.
-                        if fast < self._span_min:
-                            self._span_min = fast
-                        slow = self.noise_slow
-                        if fast <= self._learn_below:  # nothing on top of the noise
-                            w = self._slow_w
-                            slow += w * (y - slow)
-                            if w > self._slow_keep:  # a running mean until it spans enough
-                                self._slow_w = w / (1.0 + w)
-                        if slow > self._jump * fast:  # the light fell
-                            slow = fast
-                            self._slow_w = self._slow_restart_w
-                        k = self._span_k - 1
-                        if k:
-                            self._span_k = k
+                        tick = self._slow_tick - 1
+                        if tick:  # the slow side samples the fast one (SLOW_EVERY)
+                            self._slow_tick = tick
                         else:
-                            slow = self._end_span(slow)
-                        self.noise_slow = slow
-                        c2 = slow * slow * self._kA - qs2
-                        if c2 < obs:
-                            self.lux = None
-                        else:
-                            lux = (sqrt(c2) - self._sigma0) * self._inv_k
-                            self.lux = lux if lux > 0.0 else 0.0
+                            self._slow_tick = SLOW_EVERY
+                            self._slow_side(fast, qs2, obs)
+                elif self.noise_fast == 0.0:  # the first pair: the configured prior
+                    fast = self._m1 * sqrt(6.0 * (self.c2 + self._q_m2 * s2))
+                    self.noise_fast = self.noise_slow = fast
             self._z1 = z
             self._gap_prev = g1
             r = self.c2 / s2 + self._q_m2
@@ -617,6 +602,37 @@ class RangeFilter:
         if t - self._last_accept_ns > self._stale_ns:
             reasons = (*reasons, Reason.STALE) if reasons else _STALE
         return _new(Estimate, (None, None, self.lux, s, _DROPOUT, reasons, _UNRELIABLE))
+
+    def _slow_side(self, fast: float, qs2: float, obs: float) -> None:
+        """Feed the fast average ``fast`` (metres) to the minimum statistics and the
+        slow average, and work out ``lux`` from the slow one (noise.py). ``qs2`` is
+        the output step's variance times S^2 and ``obs`` the least observable c^2 at
+        this reading's S, both m^2. Runs on one observable reading in ``SLOW_EVERY``."""
+        # Minimum statistics: the fast average's minimum over the last
+        # MIN_STATS_SPANS spans is the floor clutter cannot lift.
+        if fast < self._span_min:
+            self._span_min = fast
+        slow = self.noise_slow
+        if fast <= self._learn_below:  # nothing on top of the noise
+            w = self._slow_w
+            slow += w * (fast - slow)
+            if w > self._slow_keep:  # a running mean until it spans enough
+                self._slow_w = w / (1.0 + w)
+        if slow > self._jump * fast:  # the light fell
+            slow = fast
+            self._slow_w = self._slow_restart_w
+        k = self._span_k - 1
+        if k:
+            self._span_k = k
+        else:
+            slow = self._end_span(slow)
+        self.noise_slow = slow
+        c2 = slow * slow * self._kA - qs2
+        if c2 < obs:
+            self.lux = None
+        else:
+            lux = (sqrt(c2) - self._sigma0) * self._inv_k
+            self.lux = lux if lux > 0.0 else 0.0
 
     def _end_span(self, slow: float) -> float:
         """Close a span of the minimum statistics (every ``noise_frames`` observable
