@@ -79,7 +79,10 @@ class FilterConfig:
             frames, not seconds: a test's power depends on how many readings it
             has seen.
         init_speed_sigma_m_s: one-sigma prior on the target's speed when a track
-            starts, metres per second.
+            starts, metres per second: a robot's or a person's 3 m/s, so a track
+            that restarts on a target already moving (a beam sweeping a wall after a
+            weak stretch) learns its speed from the next readings instead of lagging
+            behind a prior that says "still".
         gate_sigmas: innovation gate; a reading whose innovation exceeds this many
             predicted sigmas is an ``outlier``.
         step_confirm: this many consecutive outliers that agree with each other are
@@ -126,7 +129,7 @@ class FilterConfig:
     manoeuvre_accel_psd: float = 10.0
     manoeuvre_sigmas: float = 3.5
     manoeuvre_frames: int = 10
-    init_speed_sigma_m_s: float = 1.0
+    init_speed_sigma_m_s: float = 3.0
     gate_sigmas: float = 4.0
     step_confirm: int = 2
     noise_frames: int = 25

@@ -378,3 +378,24 @@ def test_ok_only_outside_the_unreliable_zone() -> None:
     assert last.status is Status.DEGRADED
     assert Reason.UNRELIABLE_ZONE in last.reasons
     assert all(e.status is not Status.OK or e.zone is not Zone.UNRELIABLE for e in out)
+
+
+def test_a_track_that_starts_on_a_moving_target_does_not_lag_behind_a_still_prior() -> None:
+    """A person walks into the beam at 3 m/s (the fastest target docs/filter.md names):
+    the track restarts on them and must learn their speed, not hold the prior of a
+    still target. Mean lag over frames 3-39 after the step, 20 seeds, 2 cm of noise:
+    5.5 mm with a 1 m/s speed prior, 1.7 mm with the default 3 m/s."""
+    import random
+
+    lags = []
+    for seed in range(20):
+        rng = random.Random(seed)
+        f = RangeFilter()
+        for k in range(290):
+            d = 6.0 if k < 250 else 3.0 - 3.0 * (k - 250) * 0.004
+            z = round((d + rng.gauss(0.0, 0.02)) * 100) / 100
+            est = f.step(z, 1500, k * 4_000_000)
+            if k >= 253 and est.range_m is not None:
+                lags.append(est.range_m - d)
+    assert len(lags) > 20 * 30
+    assert sum(lags) / len(lags) < 0.003
