@@ -1,7 +1,7 @@
 """The rate a sensor really sends frames at, measured from when they are read.
 
-The daemon stamps the frames of one read a frame period apart, sizes a low-power
-batch in frames and waits some frame periods before calling a sensor silent. A sensor
+The daemon stamps the frames of one read a frame period apart and waits some frame
+periods before calling a sensor silent. A sensor
 need not send at the rate it was asked for: its reply to the rate command may be
 lost, its firmware may ignore the command, or it may have been left in another mode.
 ``FrameClock`` measures the rate from the reads and tells the daemon which rate to
@@ -81,14 +81,12 @@ runs at (it is asked for 23 Hz and may run at 500/21 = 23.8 Hz: 3.5 %; 4.2 % at
 
 SNAP_TOLERANCE = 0.01
 """A measurement within this fraction of 500/n Hz is taken as 500/n Hz exactly, the
-rate the sensor runs at; the timing then does not carry a measurement's noise (and a
-batch of ``publish period / frame period`` frames is not pushed over a whole number
-by it)."""
+rate the sensor runs at; the timing then does not carry a measurement's noise."""
 
 PAUSE_MIN_S = 0.05
 """A read this long after the one before, seconds, may end a sensor pause: longer
-than the gap between reads of a streaming sensor at a rate the daemon batches or polls
-for (20 ms at ``--publish-hz 50``), short enough to catch a pause that would move a
+than the gap between reads of a streaming sensor at a rate the daemon reads it on a
+timer for (20 ms at ``--publish-hz 50``), short enough to catch a pause that would move a
 0.5 s window by 10 %."""
 PAUSE_MIN_NS = int(PAUSE_MIN_S * NS)
 

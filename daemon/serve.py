@@ -19,19 +19,18 @@ the frame's monotonic read time plus an offset to the wall clock refreshed with 
 health message, so a wall-clock step shows up within one health interval.
 
 Low-power mode (``publish_hz``): the loop wakes about once per message, not per frame.
-On a serial port it sleeps in a read that the kernel holds until a message's worth of
-frames has arrived (the tty's VMIN, ``Source.batch``); other sources are read at each
-publish time. It filters every frame and publishes only the latest; ``seq`` still
-counts every frame, so subscribers see how many were folded.
+A source that buffers (a serial port) is read at each publish time: the loop sleeps
+on a timer, off the port's wait queue, and takes what came. It filters every frame
+and publishes only the latest; ``seq`` still counts every frame, so subscribers see
+how many were folded.
 
-Frame timing: the frames of one read are stamped a frame period apart for the
-filter, a low-power batch is a number of frames, and silence is a number of frame
-periods. The period is the one the sensor really sends at: a ``FrameClock`` fed with
-every read measures it, starting from the configured rate, and a sensor that did not
-take the rate command (a lost reply, firmware that ignores it) is timed by its own
-rate once 1.5 s of frames show it, with one warning. A replay keeps the rate its
-recording gives, and an I2C sensor the configured one (it is triggered on that
-schedule); for both the clock only measures, and a disagreement is logged.
+Frame timing: the frames of one read are stamped a frame period apart for the filter,
+and silence is a number of frame periods. The period is the one the sensor really sends
+at: a ``FrameClock`` fed with every read measures it, starting from the configured rate,
+and a sensor that did not take the rate command (a lost reply, firmware that ignores it)
+is timed by its own rate once 1.5 s of frames show it, with one warning. A replay keeps
+the rate its recording gives, and an I2C sensor the configured one (it is triggered on
+that schedule); for both the clock only measures, and a disagreement is logged.
 """
 
 from __future__ import annotations
@@ -62,7 +61,7 @@ from lunad.daemon.sources.base import Chunk, Source, open_source
 from lunad.daemon.sources.recording import Recorder
 from lunad.daemon.wakeup import Wakeup
 from lunad.filters import Estimate, RangeFilter, Status
-from lunad.protocol.frame import DATA_FRAME_LEN, Frame
+from lunad.protocol.frame import Frame
 from lunad.protocol.messages import (
     encode_health,
     encode_range,
@@ -79,7 +78,7 @@ WAITING_AFTER_S = 1.0  # no bytes for this long: state waiting (the contract say
 WAITING_PERIODS = 1.5  # ... or this many frame periods, whichever is longer (1 Hz: 1.5 s)
 READ_SLICE_S = 5.0
 """Longest blocking read, seconds: a backstop only. Every timed duty (health, the
-watchdog, reopening, the waiting state, the version query, a stalled batch) is a
+watchdog, reopening, the waiting state, the version query) is a
 deadline that ends the read sooner, and stop, reload and subscriptions wake it; so a
 silent sensor costs one wake-up per health message, no polling."""
 NS = 1_000_000_000
@@ -133,13 +132,6 @@ class Daemon(Reconnecting, Reloading):
         after it (``frames``)."""
         self._unsent: tuple[Frame, float | None, Estimate, int] | None = None
         """``publish_hz``: the latest frame's estimate, until a publish time sends it."""
-        self._batched: Source | None = None
-        """``publish_hz``: the source holding its reads until a message's frames came."""
-        self._batches: Source | None = None
-        """``publish_hz``: the source that took a batch; after a stall, it batches again
-        at the first read that brings frames."""
-        self._batch_stall_ns = 0
-        """``publish_hz``: no batch for this long means the sensor paused mid-batch."""
         self._reasons_json: dict[tuple[str, ...], bytes] = {}
         self.filter = RangeFilter(cfg.filter.to_filter_config())
         self._clock = FrameClock(cfg.sensor.frame_rate_hz, follow=cfg.source.kind == "serial")
@@ -171,12 +163,11 @@ class Daemon(Reconnecting, Reloading):
     def _set_frame_rate(self, rate_hz: float) -> None:
         """Time the loop for a sensor sending ``rate_hz`` frames a second: the frame
         period that spaces a read's frames for the filter, the publish period (one
-        frame period without ``publish_hz``), the batch and the silence threshold."""
+        frame period without ``publish_hz``) and the silence threshold."""
         cfg = self.cfg
         self._rate_hz = rate_hz
         self._frame_period_ns = int(NS / rate_hz)
         self._publish_period_ns = int(NS / (cfg.publish.publish_hz or rate_hz))
-        self._unbatch()
         self._waiting_after_ns = int(max(WAITING_AFTER_S, WAITING_PERIODS / rate_hz) * NS)
 
     # -- signals ------------------------------------------------------------
@@ -225,6 +216,7 @@ class Daemon(Reconnecting, Reloading):
         self._recovered_seen = 0
         self._last_recovered_log = -int(RETRY_LOG_EVERY_S * NS)
         self._next_publish = now
+        self._tick_at = now
         self._unix_offset_ns = time.time_ns() - time.monotonic_ns()
         notifier = self.notifier
         wd = notifier.watchdog_interval_s
@@ -389,29 +381,29 @@ class Daemon(Reconnecting, Reloading):
     def _read_folded(self, src: Source, until_ns: int) -> bool:
         """Low-power inner loop (``publish_hz``): filter every frame, publish the latest.
 
-        While the sensor streams, a source that can batch (``Source.batch``: a serial
-        port's VMIN) holds each read until a message's worth of frames
-        (``frame_rate / publish_hz``, rounded up; at most half the time after which
-        the sensor counts as silent) has arrived, and the loop sleeps in that read:
-        one wake-up per message, no timer. A source that buffers but cannot batch
-        (``Source.buffers``: a ``socket://`` port) is read at each publish time: the
-        loop sleeps until then and takes what came. Any other source (I2C, a replay)
-        is read as it gives readings. Either way the loop filters every frame and
-        publishes the last, at most ``publish_hz`` times a second. When no batch has
-        come for twice the time one takes (the sensor paused mid-batch), batching is
-        switched off, so that the frames short of it are read, at the next publish
-        time; it comes back with the first read after that which brings frames.
+        While the sensor streams, a source that buffers (``Source.buffers``: a serial
+        port, a ``socket://`` one) is read at each publish time, and at least every half
+        of the time after which the sensor counts as silent: the loop sleeps on a timer
+        until then and takes what came, one wake-up per message. Sleeping in a
+        read instead, even one the kernel holds for a message's worth of frames (the
+        tty's VMIN), puts the loop on the port's wait queue, and the tty wakes it for
+        every frame it receives before ``poll`` looks at VMIN: 250 wake-ups a second at
+        250 Hz, and most of the full rate's CPU (docs/performance.md). Any other source
+        (I2C, a replay) is read as it gives readings. Either way the loop filters every
+        frame and publishes the last, at most ``publish_hz`` times a second.
 
-        Except on the publish-time schedule, a message is due by its read's own time
-        (``Chunk.t_mono_ns``): a replay's recorded one, so that it folds the frames as
-        the live run did at any ``--speed``.
+        A message is due by its read's own time (``Chunk.t_mono_ns``), a publish period
+        after the last message's read less half a frame: a replay's recorded time, so
+        that it folds the frames as the live run did at any ``--speed``. The timer wakes
+        a whole period after the last message's read, so that its read is due; a tick
+        that read nothing new sends what is still unsent (the last frames before a
+        stall), which a replay of the run may not.
 
         The frames of one read arrived a frame period apart, so the filter gets them
         spaced so, ending at the read time; their messages keep the read time (the
         contract's ``t_mono_ns``). Stamped all alike, the filter would see four frames
         in five at ``dt = 0``, and the lux estimate would learn from one in five. The
-        period, and with it the batch, is the frame clock's: when that changes
-        (``_retime``) this returns, and the next call batches by the new one.
+        period is the frame clock's: when that changes (``_retime``) this returns.
 
         While the sensor is silent it blocks in the read instead: no wake-ups at
         ``publish_hz``. Returns to the housekeeping loop at ``until_ns`` or as
@@ -430,39 +422,30 @@ class Daemon(Reconnecting, Reloading):
         retimed = False
         period = self._publish_period_ns
         spacing = self._frame_period_ns
-        batched = self._batched is src
-        if (
-            not batched
-            and health.state is _CONNECTED
-            and self._version_deadline is None
-            and monotonic_ns() - self._last_bytes < period
-        ):
-            batched = self._batch(src)
-        ticking = not batched and src.buffers
+        ticking = src.buffers
+        half_silence = self._waiting_after_ns // 2
         while not (self._stopping or self._reload_requested):
             if pub.pending:
                 pub.pump()
             now = monotonic_ns()
             if ticking and health.state is _CONNECTED:
-                tick = self._next_publish
+                tick = self._tick_at
+                if tick > now + half_silence:  # read before the sensor would seem silent
+                    tick = now + half_silence
                 if tick > until_ns:
                     tick = until_ns
                 if tick > now and wait((tick - now) / NS):
                     continue  # woken for a stop, a reload or a subscription
                 chunk = src.read(0.0)
             elif until_ns > now:
-                limit = until_ns
-                if batched and self._last_bytes + self._batch_stall_ns < limit:
-                    limit = self._last_bytes + self._batch_stall_ns
-                chunk = src.read((limit - now) / NS if limit > now else 0.0)
+                chunk = src.read((until_ns - now) / NS)
             else:
                 break
             now = monotonic_ns()
             due = False
-            if ticking:
-                due = now >= self._next_publish
-                if due:
-                    self._next_publish = max(self._next_publish + period, now)
+            if ticking and now >= self._tick_at:
+                self._tick_at = max(self._tick_at + period, now)
+                due = chunk is None and now >= self._next_publish  # nothing new: send the rest
             if chunk is not None:
                 got = True
                 data, t_mono = chunk
@@ -493,18 +476,16 @@ class Daemon(Reconnecting, Reloading):
                     bad_seen = stats.checksum_errors
                 if n:
                     retimed = clock_feed(t_mono, n)
-                if not ticking:
-                    due = t_mono >= self._next_publish
-            elif batched and now - self._last_bytes >= self._batch_stall_ns:
-                self._unbatch()
-                batched = False
-                ticking = src.buffers
+                due = t_mono >= self._next_publish
             unsent = self._unsent
             if due and unsent is not None:
                 self._unsent = None
                 frame, raw_m, est, t_read = unsent
-                if not ticking:  # a period from this message, less half a frame of jitter
-                    self._next_publish = t_read + period - spacing // 2
+                # a period from this message, less half a frame of jitter; a timer wakes
+                # for the next one a whole period on, so that its read is due
+                self._next_publish = t_read + period - spacing // 2
+                if ticking:
+                    self._tick_at = t_read + period
                 self._send_range(frame, raw_m, est, t_read, t_read + self._unix_offset_ns)
             if retimed:
                 self._retime()
@@ -513,27 +494,10 @@ class Daemon(Reconnecting, Reloading):
                 health.state is not _CONNECTED or self._version_deadline is not None
             ):
                 break
-            if ticking and chunk is not None and self._batches is src:
-                batched = self._batch(src)
-                ticking = not batched
             if now >= until_ns:
                 break
         self._checksum_errors_seen = bad_seen
         return got
-
-    def _batch(self, src: Source) -> bool:
-        """Have ``src`` hold reads until a message's worth of frames has come (at most
-        half the time after which the sensor counts as silent); True when it does."""
-        self._unbatch()
-        period = self._publish_period_ns
-        spacing = self._frame_period_ns
-        frames = min(-(-period // spacing), max(1, self._waiting_after_ns // 2 // spacing))
-        held = src.batch(DATA_FRAME_LEN * frames)
-        if not held:
-            return False
-        self._batched = self._batches = src
-        self._batch_stall_ns = 2 * spacing * -(-held // DATA_FRAME_LEN)
-        return True
 
     def _retime(self) -> None:
         """The frame clock's verdict changed: time frames by its rate, and say so once.
@@ -577,14 +541,6 @@ class Daemon(Reconnecting, Reloading):
             )
         else:
             log.info("%s: frames come %s a second again, %s", self._source_desc(), nominal, why)
-
-    def _unbatch(self) -> None:
-        """Let the source batching reads for ``publish_hz`` return bytes as they come again."""
-        src = self._batched
-        if src is not None:
-            self._batched = None
-            if src is self._source:
-                src.batch(0)
 
     def _step(self, frame: Frame, raw_m: float | None, t_mono_ns: int) -> Estimate:
         """Filter one frame (``raw_m``: its distance, metres; taken at ``t_mono_ns``)

@@ -24,7 +24,6 @@ import errno
 import os
 import random
 import select
-import termios
 import threading
 import time
 import tty
@@ -163,17 +162,6 @@ class PtyDevice:
     def slave_name(self) -> str:
         """The pty slave the symlink points at now (changes on replug)."""
         return self._slave_name
-
-    @property
-    def reader_vmin(self) -> int:
-        """The VMIN the host has set on its end of the line (0: woken by every byte).
-
-        Lets tests see whether a reader batches its reads (``Source.batch``).
-        """
-        if self._slave is None:
-            raise RuntimeError("the pty is not open")
-        vmin: int = termios.tcgetattr(self._slave)[6][termios.VMIN]
-        return vmin
 
     def start(self) -> PtyDevice:
         """Open the pty, make the symlink and start streaming.

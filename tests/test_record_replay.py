@@ -105,10 +105,10 @@ def test_replay_publishes_what_the_live_run_did(
     assert "asked for" not in replay.log and "frame rate 250 Hz" in replay.log
     if publish_hz:
         # Every frame is filtered alike, so a message of the same frame is the same
-        # message. Which frames are sent is decided by the reads' times, as recorded,
-        # and matches while the live run slept in batched reads; where it woke on a
-        # timer (before its first batch, after a stall) it may send a frame more: 97-100 %
-        # of the live messages were replayed on a quiet host here, 87 % on a loaded one.
+        # message. Which frames are sent is decided by the reads' times, as recorded, by
+        # the rule the live run followed; a live message sent on its timer with nothing
+        # new read (the last before a stall) is one the replay may not send: all of the
+        # live messages were replayed here, on a quiet host and under three busy loops.
         live_by_seq = {m.seq: m for m in live_msgs}
         common = [m for m in replayed if m.seq in live_by_seq]
         assert comparable(common) == comparable([live_by_seq[m.seq] for m in common])

@@ -1,4 +1,5 @@
-"""SerialSource on real pseudo-terminals: batched reads (the tty's VMIN) and hang-ups."""
+"""SerialSource on real pseudo-terminals: reads, what a read after a sleep returns, and
+hang-ups."""
 
 from __future__ import annotations
 
@@ -33,66 +34,34 @@ def line() -> Iterator[tuple[int, SerialSource]]:
             pass
 
 
-def vmin(master: int) -> int:
-    """The slave's VMIN, read through the master (termios ioctls reach the slave)."""
-    value: int = termios.tcgetattr(master)[6][termios.VMIN]
-    return value
-
-
-def test_reads_return_each_frame_without_a_batch(line: tuple[int, SerialSource]) -> None:
+def test_reads_return_each_frame_as_it_comes(line: tuple[int, SerialSource]) -> None:
     master, src = line
-    assert vmin(master) == 0
+    assert termios.tcgetattr(master)[6][termios.VMIN] == 0  # pyserial's: no batching
     os.write(master, FRAME)
     chunk = src.read(1.0)
     assert chunk is not None and chunk.data == FRAME
 
 
-def test_batch_holds_the_read_until_the_batch_came(line: tuple[int, SerialSource]) -> None:
+def test_a_read_after_a_sleep_takes_everything_that_came(line: tuple[int, SerialSource]) -> None:
+    """What the low-power loop relies on (``buffers``): it sleeps until a publish time,
+    off the port, and one read then returns every frame that arrived meanwhile."""
     master, src = line
-    assert src.batch(2 * len(FRAME)) == 18
-    assert vmin(master) == 18
-    os.write(master, FRAME)
-    t0 = time.monotonic()
-    assert src.read(0.2) is None  # one frame of two: held, the read times out
-    assert time.monotonic() - t0 >= 0.15
-    os.write(master, FRAME)
-    chunk = src.read(2.0)
-    assert chunk is not None and chunk.data == FRAME * 2
+    assert src.buffers
+    for _ in range(5):
+        os.write(master, FRAME)
+    time.sleep(0.05)
+    chunk = src.read(0.0)
+    assert chunk is not None and chunk.data == FRAME * 5
+    assert src.read(0.0) is None
 
 
-def test_unbatching_releases_the_bytes_short_of_a_batch(line: tuple[int, SerialSource]) -> None:
+def test_hang_up_is_source_lost(line: tuple[int, SerialSource]) -> None:
     master, src = line
-    assert src.batch(5 * len(FRAME)) == 45
-    os.write(master, FRAME * 3)
-    assert src.read(0.1) is None
-    assert src.batch(0) == 0 and vmin(master) == 0
-    chunk = src.read(1.0)
-    assert chunk is not None and chunk.data == FRAME * 3
-
-
-def test_batch_is_capped_at_what_vmin_holds(line: tuple[int, SerialSource]) -> None:
-    master, src = line
-    assert src.batch(1000) == 255
-    assert vmin(master) == 255
-
-
-def test_close_gives_the_line_back_unbatched(line: tuple[int, SerialSource]) -> None:
-    master, src = line
-    src.batch(45)
-    src.close()
-    assert vmin(master) == 0
-
-
-def test_hang_up_while_batched_is_source_lost(line: tuple[int, SerialSource]) -> None:
-    master, src = line
-    src.batch(45)
     os.write(master, FRAME)
     os.close(master)
-    t0 = time.monotonic()
     with pytest.raises(SourceLostError):
         for _ in range(3):  # the queued frame may come first
             src.read(2.0)
-    assert time.monotonic() - t0 < 1.0  # a hang-up does not wait for the batch
 
 
 def test_a_socket_port_whose_server_went_away_is_source_lost() -> None:
@@ -118,11 +87,3 @@ def test_a_socket_port_whose_server_went_away_is_source_lost() -> None:
                     src.read(0.5)
         finally:
             src.close()
-
-
-def test_url_ports_cannot_batch() -> None:
-    src = SerialSource("loop://")
-    try:
-        assert src.batch(45) == 0
-    finally:
-        src.close()

@@ -80,19 +80,6 @@ class Source(ABC):
         and a replay hands out one recorded read at a time."""
         return False
 
-    def batch(self, nbytes: int) -> int:
-        """Hold a blocking ``read`` until ``nbytes`` have arrived; returns the batch held.
-
-        With a batch, ``read(timeout_s)`` returns once at least that many bytes are
-        waiting, or None at the timeout; bytes short of a batch stay queued until it
-        fills or ``batch(0)``. The low-power loop asks for one message's worth of
-        frames, so it sleeps in the read through the frames it folds instead of
-        waking for each or on a timer. Returns the batch in bytes, which may be less
-        than asked (a tty's VMIN holds 255 at most), or 0: no batching, the default
-        that ``batch(0)`` restores, where a read returns as soon as anything arrives.
-        """
-        return 0
-
     def write(self, data: bytes) -> None:  # noqa: B027 - optional for read-only sources
         """Send command bytes to the sensor (sources that cannot send ignore them)."""
 

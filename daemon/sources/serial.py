@@ -31,7 +31,6 @@ import logging
 import os
 import re
 import select
-import termios
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,7 +42,6 @@ import serial
 from lunad.daemon.errors import SourceLostError, SourceOpenError
 from lunad.daemon.sources.base import Source
 
-VMIN_MAX = 255  # termios VMIN is one byte (termios(3))
 PATH_CHECK_S = 1.0
 """A silent port checks at most this often that its path still names it (two ``stat``
 calls): a sensor that stops answering is told from a moved name within about this,
@@ -237,7 +235,6 @@ class SerialSource(Source):
         except ValueError as exc:
             raise SourceOpenError(f"cannot open {device}: {exc}") from exc
         ser = self._ser
-        self._vmin = 0  # VMIN set by ``batch``; pyserial opens with 0
         # The port and pyserial's abort pipe, polled together; None for URL ports.
         self._poll: Callable[[float | None], list[tuple[int, int]]] | None = None
         if type(ser) is serial.Serial and ser.fd is not None and ser.pipe_abort_read_r is not None:
@@ -267,28 +264,6 @@ class SerialSource(Source):
     def buffers(self) -> bool:
         """True: the kernel (or a socket) keeps what arrives until it is read."""
         return True
-
-    def batch(self, nbytes: int) -> int:
-        """Hold reads until ``nbytes`` (at most 255) are waiting: the tty's VMIN.
-
-        The kernel then keeps ``poll`` from reporting the port readable until VMIN
-        bytes are queued (n_tty's ``input_available_p``), so the reader sleeps through
-        the frames in between with no timer and no wake-up. A real port only; URL
-        ports return 0 (their pyserial path has no VMIN). Checked on Linux with a
-        pty: ``poll`` waits for VMIN bytes, and reports a hang-up at once as before.
-        """
-        if self._poll is None:
-            return 0
-        vmin = min(nbytes, VMIN_MAX) if nbytes > 1 else 0
-        try:
-            attrs = termios.tcgetattr(self._fd)
-            attrs[6][termios.VMIN] = vmin
-            attrs[6][termios.VTIME] = 0
-            termios.tcsetattr(self._fd, termios.TCSANOW, attrs)
-        except (termios.error, OSError):
-            return 0
-        self._vmin = vmin
-        return vmin
 
     def _read(self, timeout_s: float | None) -> bytes:
         """One ``poll`` and one ``read`` on a real port; pyserial's path for URLs.
@@ -393,9 +368,7 @@ class SerialSource(Source):
                 pass
 
     def close(self) -> None:
-        """Close the port (VMIN back to 0 for whoever opens it next); safe to call twice."""
-        if self._poll is not None and self._vmin:
-            self.batch(0)  # a port already gone fails quietly in there
+        """Close the port; safe to call twice."""
         self._poll = None
         self._opened = None
         try:
