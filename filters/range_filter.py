@@ -124,7 +124,6 @@ class RangeFilter:
         "_amp_strong",
         "_amp_strong_again",
         "_c2_floor",
-        "_clear",
         "_clip_a",
         "_confirm",
         "_drift_gain",
@@ -265,7 +264,6 @@ class RangeFilter:
         """Forget all state (after a reconnect)."""
         c = self.config
         self.weak = self.out_of_range = self.ambient = False
-        self._clear = True
         self.active = False
         self.x = self.v = self.p00 = self.p01 = self.p11 = 0.0
         self.qa = self._qa_lo
@@ -327,7 +325,8 @@ class RangeFilter:
         marginal = False  # a reading in the weak gate's hysteresis band: degraded
         reasons: tuple[Reason, ...]
         if (  # the common frame: no latch set, strong enough and in range
-            self._clear
+            not self.weak
+            and not self.out_of_range
             and raw_m is not None
             and amp >= self._amp_strong
             and amp <= AMP_AMBIENT
@@ -368,7 +367,6 @@ class RangeFilter:
                 else:  # weak with a reading: the amp is in the band above the threshold
                     marginal = weak
                     reasons = _NONE
-            self._clear = not weak and not self.out_of_range
 
         outlier_e = 0.0
         active = self.active
