@@ -47,6 +47,7 @@ from lunad.filters.estimate import Estimate, Reason, Status, Zone
 from lunad.filters.noise import (
     FAST_PRIOR_READINGS,
     GAP_NORMALISERS,
+    LIGHT_CUT_SIGMAS,
     MAX_GAP_FRAMES,
     MIN_STATS_BIAS,
     MIN_STATS_NEAR,
@@ -54,6 +55,7 @@ from lunad.filters.noise import (
     SLOW_EVERY,
     SLOW_RESTART_SPANS,
     SLOW_RISE_RATIO,
+    truncated_abs_mean,
     winsorised_abs_mean,
 )
 from lunad.filters.policy import band_edge, first_amp_at_least
@@ -113,9 +115,10 @@ class RangeFilter:
 
     Not thread-safe: one instance per sensor, called from the read loop. State:
     ``x``, ``v``, ``p00``, ``p01``, ``p11`` (the track: metres, m/s and their
-    covariance), ``noise_fast`` and ``noise_slow`` (the noise statistic A of
-    noise.py, metres), ``c2`` (c^2 from the slow one, m^2), ``lux`` (L_hat, lux, or
-    None where it cannot be observed), ``qa`` (the process noise in force, m^2/s^3),
+    covariance), ``noise_fast``, ``noise_light`` and ``noise_slow`` (the noise
+    statistic A of noise.py, metres: winsorised; truncated, for the light; its slow
+    average), ``c2`` (c^2 from the fast one, m^2), ``lux`` (L_hat, lux, or None
+    where it cannot be observed), ``qa`` (the process noise in force, m^2/s^3),
     ``weak``/``out_of_range``/``ambient`` (policy.py's latches), ``zone`` (the last
     published zone, for zone.py's hysteresis).
     """
@@ -126,6 +129,7 @@ class RangeFilter:
         "_c2_floor",
         "_clip_a",
         "_confirm",
+        "_cut_a",
         "_drift_gain",
         "_drift_noise",
         "_drift_thr2",
@@ -140,6 +144,7 @@ class RangeFilter:
         "_inv_k",
         "_jump",
         "_kA",
+        "_kL",
         "_last_accept_ns",
         "_last_t_ns",
         "_learn_below",
@@ -154,6 +159,7 @@ class RangeFilter:
         "_mid_m",
         "_min_in",
         "_min_m",
+        "_mt",
         "_obs2",
         "_outlier_drop2",
         "_q_m2",
@@ -194,6 +200,7 @@ class RangeFilter:
         "man_mean",
         "man_power",
         "noise_fast",
+        "noise_light",
         "noise_slow",
         "out_of_range",
         "p00",
@@ -249,6 +256,10 @@ class RangeFilter:
         self._m1 = m1
         self._clip_a = c.noise_clip_sigmas / m1
         self._kA = 1.0 / (6.0 * m1 * m1)
+        mt = truncated_abs_mean(LIGHT_CUT_SIGMAS)
+        self._mt = mt
+        self._cut_a = LIGHT_CUT_SIGMAS / mt
+        self._kL = 1.0 / (6.0 * mt * mt)
         self._fast_keep = 1.0 / c.noise_frames
         # The slow side sees one sample in SLOW_EVERY: its weights count readings.
         self._slow_keep = min(1.0, SLOW_EVERY / c.noise_slow_frames)
@@ -276,7 +287,7 @@ class RangeFilter:
         self._run_gap = 0
         c0 = c.sigma0_m + c.k_m_per_lux * c.lux_init
         self.c2 = c0 * c0
-        self.noise_fast = self.noise_slow = 0.0
+        self.noise_fast = self.noise_light = self.noise_slow = 0.0
         self._slow_w = self._slow_restart_w
         self._fast_w = 1.0 / (1.0 + FAST_PRIOR_READINGS)
         self._span_mins = [_INF] * MIN_STATS_SPANS
@@ -388,11 +399,15 @@ class RangeFilter:
                     else:
                         d = ((z - z1) / g1 - (z1 - z2) / g2) * GAP_NORMALISERS[g1][g2]
                     y = (d if d >= 0.0 else -d) * s
+                    w = self._fast_w
+                    light = self.noise_light
+                    if y < self._cut_a * light:  # beyond: a step or a spike, not light
+                        light += w * (y - light)
+                        self.noise_light = light
                     fast = self.noise_fast
                     lim = self._clip_a * fast
                     if y > lim:
                         y = lim
-                    w = self._fast_w
                     fast += w * (y - fast)
                     if w > self._fast_keep:
                         self._fast_w = w / (1.0 + w)
@@ -409,10 +424,11 @@ class RangeFilter:
                             self._slow_tick = tick
                         else:
                             self._slow_tick = SLOW_EVERY
-                            self._slow_side(fast, qs2, obs)
+                            self._slow_side(light, qs2, obs)
                 elif self.noise_fast == 0.0:  # the first pair: the configured prior
-                    fast = self._m1 * sqrt(6.0 * (self.c2 + self._q_m2 * s2))
-                    self.noise_fast = self.noise_slow = fast
+                    sd = sqrt(6.0 * (self.c2 + self._q_m2 * s2))
+                    self.noise_fast = self._m1 * sd
+                    self.noise_light = self.noise_slow = self._mt * sd
             self._z1 = z
             self._gap_prev = g1
             r = self.c2 / s2 + self._q_m2
@@ -602,10 +618,11 @@ class RangeFilter:
         return _new(Estimate, (None, None, self.lux, s, _DROPOUT, reasons, _UNRELIABLE))
 
     def _slow_side(self, fast: float, qs2: float, obs: float) -> None:
-        """Feed the fast average ``fast`` (metres) to the minimum statistics and the
-        slow average, and work out ``lux`` from the slow one (noise.py). ``qs2`` is
-        the output step's variance times S^2 and ``obs`` the least observable c^2 at
-        this reading's S, both m^2. Runs on one observable reading in ``SLOW_EVERY``."""
+        """Feed ``fast``, the fast average that the light is read from (``noise_light``,
+        metres), to the minimum statistics and the slow average, and work out ``lux``
+        from the slow one (noise.py). ``qs2`` is the output step's variance times S^2
+        and ``obs`` the least observable c^2 at this reading's S, both m^2. Runs on
+        one observable reading in ``SLOW_EVERY``."""
         # Minimum statistics: the fast average's minimum over the last
         # MIN_STATS_SPANS spans is the floor clutter cannot lift.
         if fast < self._span_min:
@@ -625,7 +642,7 @@ class RangeFilter:
         else:
             slow = self._end_span(slow)
         self.noise_slow = slow
-        c2 = slow * slow * self._kA - qs2
+        c2 = slow * slow * self._kL - qs2
         if c2 < obs:
             self.lux = None
         else:

@@ -399,3 +399,44 @@ def test_a_track_that_starts_on_a_moving_target_does_not_lag_behind_a_still_prio
                 lags.append(est.range_m - d)
     assert len(lags) > 20 * 30
     assert sum(lags) / len(lags) < 0.003
+
+
+def test_edges_crossed_every_few_dozen_readings_do_not_read_as_light() -> None:
+    """A beam that sweeps across furniture: the target jumps between 1.5 m and 3.2 m
+    every 30 readings under 300 lux. Each edge puts two second differences of metres
+    into the noise statistic; the average the light is read from leaves them out
+    (noise.LIGHT_CUT_SIGMAS), so the lux stays indoor: within 2 klux on 99 % of the
+    frames here. A winsorised average counted each at its clip and read 2-3 klux
+    (within 2 klux on 20-54 % of frames)."""
+    amp, lux = 500, 300.0
+    s = sigma_of(amp, lux)
+    within = judged = 0
+    for seed in range(5):
+        rng = random.Random(seed)
+        flt = RangeFilter()
+        for k in range(2500):
+            truth = 1.5 if (k // 30) % 2 else 3.2
+            est = flt.step(round((truth + rng.gauss(0, s)) * 100) / 100, amp, k * FRAME_NS)
+            if k >= 500 and est.lux_est is not None:
+                judged += 1
+                within += abs(est.lux_est - lux) <= 2000.0
+    assert judged > 0.9 * 5 * 2000
+    assert within / judged > 0.95
+
+
+def test_the_light_climbs_from_a_prior_ten_times_too_quiet() -> None:
+    """A sensor ten times noisier in the dark than the configured sigma0: the readings'
+    own noise reads as light, (c - sigma0) / k, and the average the light is read from
+    gets there although its cut starts ten times too tight, since the cut moves out
+    with it: within 30 % after one second at 250 Hz."""
+    cfg = FilterConfig(sigma0_m=0.0004)
+    amp, c_true = 500, 0.004
+    lux_true = (c_true - cfg.sigma0_m) / cfg.k_m_per_lux
+    for seed in range(3):
+        rng = random.Random(seed)
+        flt = RangeFilter(cfg)
+        s = c_true * cfg.amp_ref / amp
+        zs = [round((2.0 + rng.gauss(0, s)) * 100) / 100 for _ in range(250)]
+        est = feed(flt, zs, amp)[-1]
+        assert est.lux_est is not None
+        assert est.lux_est == pytest.approx(lux_true, rel=0.3)
