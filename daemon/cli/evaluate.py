@@ -41,7 +41,10 @@ from steps (cm), coverage (% of frames with an estimate), 2- and 5-sigma coverag
 (%), bad outputs (more than 30 cm off after the first three frames of a step), the
 worst step lag (frames), and for lunad the share of settled lux figures within 30 %
 or 2 klux and of null ones, and how many edge readings it published ok (none is the
-target). Last, the cost of one RangeFilter.step and the targets missed."""
+target). The oracle's lux is read in hindsight (the light's changes, the motion and
+the spikes known): where even it misses the lux target, the readings do not hold the
+light to that precision, and the list of misses says so. Last, the cost of one
+RangeFilter.step and the targets missed."""
 
 _EPILOG = """\
 examples:
