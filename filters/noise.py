@@ -27,7 +27,10 @@ The statistic is a running mean of |d2| S (S of the newest reading) over
   what a step leaves in it is, to the tracker, noise;
 - for the light, truncated at ``LIGHT_CUT_SIGMAS``: a sample that far out is a step,
   an edge or a spike, and is left out, so that it moves the light not at all.
-  E[|d2| given |d2| < C sd] = mt(C) sd replaces m1 in the formula above.
+  E[|d2| given |d2| < C sd] = mt(C) sd replaces m1 in the formula above. Only a sample
+  the first average clips is tested against the cut (the cut lies beyond the clip
+  while the two averages agree; a sample the first takes whole, the light takes too),
+  which spares the common frame the test.
 
 L_hat = (c - sigma0) / k, the paper's eq. 2 inverted, is read from the second. Two
 averages of it run side by side: the fast one (``noise_frames``) that follows a cloud

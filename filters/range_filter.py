@@ -401,13 +401,14 @@ class RangeFilter:
                     y = (d if d >= 0.0 else -d) * s
                     w = self._fast_w
                     light = self.noise_light
-                    if y < self._cut_a * light:  # beyond: a step or a spike, not light
-                        light += w * (y - light)
-                        self.noise_light = light
                     fast = self.noise_fast
                     lim = self._clip_a * fast
-                    if y > lim:
+                    if y > lim:  # clipped: and beyond the light's cut, not light at all
+                        if y < self._cut_a * light:
+                            self.noise_light = light + w * (y - light)
                         y = lim
+                    else:
+                        self.noise_light = light + w * (y - light)
                     fast += w * (y - fast)
                     if w > self._fast_keep:
                         self._fast_w = w / (1.0 + w)
@@ -424,7 +425,7 @@ class RangeFilter:
                             self._slow_tick = tick
                         else:
                             self._slow_tick = SLOW_EVERY
-                            self._slow_side(light, qs2, obs)
+                            self._slow_side(self.noise_light, qs2, obs)
                 elif self.noise_fast == 0.0:  # the first pair: the configured prior
                     sd = sqrt(6.0 * (self.c2 + self._q_m2 * s2))
                     self.noise_fast = self._m1 * sd
@@ -435,16 +436,16 @@ class RangeFilter:
             if active and t - self._last_accept_ns <= self._stale_ns:
                 x = self.x
                 p00 = self.p00
+                p01 = self.p01
+                p11 = self.p11
                 if dt > 0.0:
-                    p01 = self.p01
-                    p11 = self.p11
                     qd = self.qa * dt
                     qdt = qd * dt
                     dp = dt * p11
                     x += self.v * dt
                     p00 += dt * (2.0 * p01 + dp) + qdt * dt * (1.0 / 3.0)
-                    self.p01 = p01 + dp + 0.5 * qdt
-                    self.p11 = p11 + qd
+                    p01 = p01 + dp + 0.5 * qdt
+                    p11 = p11 + qd
                 e = z - x
                 sp = p00 + r
                 e2 = e * e
@@ -482,17 +483,18 @@ class RangeFilter:
                         self._run_n = n
                         self.x = x
                         self.p00 = p00
+                        self.p01 = p01
+                        self.p11 = p11
                         outlier_e = e
                 else:
                     if self._run_n:
                         self._run_n = 0
-                    p01 = self.p01
                     k0 = p00 / sp
                     k1 = p01 / sp
                     self.x = x + k0 * e
                     self.v += k1 * e
                     self.p00 = p00 - k0 * p00
-                    p11 = self.p11 - k1 * p01
+                    p11 = p11 - k1 * p01
                     if p11 < 0.0:  # float rounding at extreme settings
                         self.p01 = self.p11 = 0.0
                     else:
