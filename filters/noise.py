@@ -121,10 +121,10 @@ normal sample lies that far out once in 16,000, a step or an edge crossed at the
 noise of a few centimetres nearly always. A winsorised mean still counts each such
 sample at its clip: on a beam that sweeps a room (an edge every few dozen readings) it
 read 300 lux as 2-4 klux. An average that starts too low still climbs to the truth, the
-cut moving out with it: from 10 times too low (a sensor ten times noisier than the
-prior, or dark to full sun) it is within 30 % after 75 readings. ``lunad eval``, three seeds: 40
-targets missed against 46 with the winsorised average; cuts of 3, 3.5 and 5 missed
-42, 41 and 42 (docs/filter.md)."""
+cut moving out with it: from ten times too low (a sensor ten times noisier than the
+prior) ``lux_est`` is within 30 % after 250 readings (a test checks it). ``lunad
+eval``, three seeds: 40 targets missed against 46 with the winsorised average; cuts
+of 3, 3.5 and 5 missed 42, 41 and 42 (docs/filter.md)."""
 
 SLOW_EVERY = 5
 """The slow side (the minimum statistics, the slow average and ``lux_est``) samples the

@@ -96,8 +96,8 @@ HINDSIGHT_LUX_BAND = 0.5
 the tolerance of today's: the rest of the tolerance is the window's own bias."""
 HINDSIGHT_LUX_WINDOW_S = 4.0  # ... and at most this far back, seconds
 HINDSIGHT_CUT_SIGMAS = 4.5
-"""A second difference further than this many of its true sigmas from the truth's own
-is a step, an edge or a spike, and the oracle's lux leaves it out."""
+"""A second difference of the readings' errors beyond this many of its true sigmas is
+a spike, and the oracle's lux leaves it out."""
 HINDSIGHT_MIN_SAMPLES = 10  # fewer second differences in the window: no figure
 
 METHODS = ("raw", "median5", "lunad", "oracle")
@@ -352,20 +352,22 @@ def _hindsight_lux(
     back_max = max(1, round(HINDSIGHT_LUX_WINDOW_S * rate_hz))
     out: list[float | None] = [None] * n
     last = math.nan
-    j = 0
+    start: int | None = None  # the window's first frame, while the light stays ``last``
     for i in range(n):
+        now = run.truth[i].lux
+        if now != last:
+            last = now
+            start = None
         sig = run.sigma_m[i]
         if not settled[i] or sig is None or sig < config.resolution_m:
             continue
-        now = run.truth[i].lux
-        band = HINDSIGHT_LUX_BAND * max(LUX_REL_TOL * now, LUX_ABS_TOL_LUX)
         stop = max(0, i - back_max)
-        if now != last:  # the same light as the last frame: the same start, or later
-            j = i
-            while j > stop and abs(run.truth[j - 1].lux - now) <= band:
-                j -= 1
-            last = now
-        j = max(j, stop)
+        if start is None:
+            band = HINDSIGHT_LUX_BAND * max(LUX_REL_TOL * now, LUX_ABS_TOL_LUX)
+            start = i
+            while start > stop and abs(run.truth[start - 1].lux - now) <= band:
+                start -= 1
+        j = max(start, stop)
         k = count[i + 1] - count[j]
         if k < HINDSIGHT_MIN_SAMPLES:
             continue
