@@ -31,7 +31,10 @@ evidence for each choice):
    the mean square does not explain: a bias of the track (a lag, a start of
    motion). On an outlier frame it covers the disagreement with the reading, unless
    that sigma would pass ``sigma_unreliable_m``: then the frame is a ``dropout``.
-   ``stale`` when nothing was accepted for ``stale_after_s``.
+   ``stale`` when nothing was accepted for ``stale_after_s``, and on the reading that
+   starts the track again after that: one reading alone (a beam back from a surface
+   too weak to read, whose first reading mixes two surfaces) is not published until
+   the next one agrees with it.
 6. Zone (zone.py) from L_hat (0 where unobservable), S and the published sigma.
 
 One implementation, flat: every frame pays for this at 250 Hz on a Pi Zero 2, and a
@@ -528,9 +531,11 @@ class RangeFilter:
                     extra = excess if excess > 0.0 else 0.0
                     excess = drift2 - self._drift_noise * power
                     self.extra = extra + excess if excess > 0.0 else extra
-            else:
+            else:  # no track yet, or none accepted for stale_after_s: start one here
                 self._start(z, r)
                 self._last_accept_ns = t
+                if active:  # after a stale stretch: held back until a reading agrees
+                    reasons = (*reasons, Reason.STALE) if reasons else _STALE
         else:
             self._gap += 1
             if active:
