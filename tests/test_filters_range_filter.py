@@ -14,6 +14,7 @@ from lunad.filters import (
     Status,
     Zone,
 )
+from lunad.filters.noise import MIN_STATS_BIAS
 
 CFG = FilterConfig()
 FRAME_NS = 4_000_000  # 250 Hz
@@ -461,3 +462,21 @@ def test_the_light_climbs_from_a_prior_ten_times_too_quiet() -> None:
         est = feed(flt, zs, amp)[-1]
         assert est.lux_est is not None
         assert est.lux_est == pytest.approx(lux_true, rel=0.3)
+
+
+def test_the_noise_floors_bias_is_what_white_readings_show() -> None:
+    """MIN_STATS_BIAS divides the floor (the least of the light's fast average over the
+    last spans) back to the average's mean: on white Gaussian readings the floor's
+    mean over the average's mean must be that constant (0.818-0.820 at four seeds)."""
+    flt = RangeFilter()
+    rng = random.Random(0)
+    floors: list[float] = []
+    means: list[float] = []
+    for k in range(150_000):
+        flt.step(2.0 + rng.gauss(0.0, 0.03), 2000, k * FRAME_NS)
+        if k > 2000:
+            means.append(flt.noise_light)
+            if k % 25 == 0:
+                floors.append(min(flt._span_mins))
+    ratio = (sum(floors) / len(floors)) / (sum(means) / len(means))
+    assert ratio == pytest.approx(MIN_STATS_BIAS, abs=0.01)
