@@ -107,11 +107,23 @@ def test_replay_publishes_what_the_live_run_did(
         # Every frame is filtered alike, so a message of the same frame is the same
         # message. Which frames are sent is decided by the reads' times, as recorded, by
         # the rule the live run followed; a live message sent on its timer with nothing
-        # new read (the last before a stall) is one the replay may not send: all of the
-        # live messages were replayed here, on a quiet host and under three busy loops.
+        # new read (the last before a stall, or before bytes the pty delivered late) is
+        # one the replay may not send, and folds into its next message, whose ``frames``
+        # then counts both: 76-77 of 76-77 live messages were replayed on a quiet host
+        # and under three busy loops, and one of them missed once in about ten runs.
         live_by_seq = {m.seq: m for m in live_msgs}
+        replayed_seqs = {m.seq for m in replayed}
         common = [m for m in replayed if m.seq in live_by_seq]
-        assert comparable(common) == comparable([live_by_seq[m.seq] for m in common])
+        for m in common:
+            folded = [
+                live_by_seq[s].frames
+                for s in live_by_seq
+                if m.seq - m.frames < s < m.seq and s not in replayed_seqs
+            ]
+            assert m.frames == live_by_seq[m.seq].frames + sum(folded), m.seq
+        assert [c | {"frames": 0} for c in comparable(common)] == [
+            c | {"frames": 0} for c in comparable([live_by_seq[m.seq] for m in common])
+        ]
         assert len(common) >= 0.75 * len(live_msgs)
     else:
         assert comparable(replayed) == comparable(live_msgs)
