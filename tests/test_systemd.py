@@ -614,7 +614,10 @@ def test_make_install_with_pip_into_destdir(tmp_path: Path) -> None:
         text=True,
     )
     assert r.returncode == 0, r.stderr
-    assert not (REPO / "build").exists()  # pip built from a copy, not in the checkout
+    schemas = venv.glob("lib/python*/site-packages/lunad/protocol/schema/*.json")
+    assert sorted(p.name for p in schemas) == ["health.v2.json", "range.v2.json"]
+    # pip built from a copy, not in the checkout (build/ itself may hold `make typecheck`'s)
+    assert not list(REPO.glob("build/lib*")) and not list(REPO.glob("build/bdist*"))
     run_make("install", root)  # again: an upgrade in place
     run_make("uninstall", root)
     assert not (root / "opt/lunad").exists()
