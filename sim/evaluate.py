@@ -312,10 +312,15 @@ def _lux_settled(run: Run, rate_hz: float) -> list[bool]:
 
 
 def _hindsight_lux(
-    run: Run, settled: Sequence[bool], rate_hz: float, config: FilterConfig
+    run: Run,
+    readable: Sequence[bool],
+    settled: Sequence[bool],
+    rate_hz: float,
+    config: FilterConfig,
 ) -> list[float | None]:
     """The oracle's lux figure per frame (module doc), lux; None where it is not judged:
-    not settled, the true noise under the output step, or too few samples."""
+    not settled, the true noise under the output step, or too few samples. ``readable``:
+    frames whose reading the sensor's own rule accepts (evaluate_run)."""
     n = len(run.truth)
     q = config.resolution_m * config.resolution_m / 12.0
     ref2 = config.amp_ref * config.amp_ref
@@ -329,7 +334,10 @@ def _hindsight_lux(
             s0, s1, s2 = run.sigma_m[i], run.sigma_m[i - 1], run.sigma_m[i - 2]
             a0, a1, a2 = run.amp[i], run.amp[i - 1], run.amp[i - 2]
             if (
-                z0 is not None
+                readable[i]
+                and readable[i - 1]
+                and readable[i - 2]
+                and z0 is not None  # as readable says; for the type checker
                 and z1 is not None
                 and z2 is not None
                 and s0 is not None
@@ -337,8 +345,6 @@ def _hindsight_lux(
                 and s2 is not None
                 and min(s0, s1, s2) >= config.resolution_m  # Sheppard's q holds
                 and not any(run.mixed[i - 2 : i + 1])  # an edge: two surfaces
-                and AMP_WEAK <= min(a0, a1, a2)
-                and max(a0, a1, a2) <= AMP_AMBIENT
             ):
                 t0, t1, t2 = (run.truth[i - k].distance_m for k in range(3))
                 d = (z0 - t0) - 2.0 * (z1 - t1) + (z2 - t2)  # the noise's: motion known
@@ -515,7 +521,7 @@ def evaluate_run(
             truth,
             steps,
             away,
-            _hindsight_lux(run, settled, scenario.rate_hz, config or FilterConfig()),
+            _hindsight_lux(run, readable, settled, scenario.rate_hz, config or FilterConfig()),
             true_lux,
             settled,
         ),

@@ -431,15 +431,12 @@ def test_edges_crossed_every_few_dozen_readings_do_not_read_as_light() -> None:
     frames here. A winsorised average counted each at its clip and read 2-3 klux
     (within 2 klux on 20-54 % of frames)."""
     amp, lux = 500, 300.0
-    s = sigma_of(amp, lux)
     within = judged = 0
     for seed in range(5):
         rng = random.Random(seed)
-        flt = RangeFilter()
-        for k in range(2500):
-            truth = 1.5 if (k // 30) % 2 else 3.2
-            est = flt.step(round((truth + rng.gauss(0, s)) * 100) / 100, amp, k * FRAME_NS)
-            if k >= 500 and est.lux_est is not None:
+        zs = [z for b in range(84) for z in noisy(rng, 1.5 if b % 2 else 3.2, amp, 30, lux)]
+        for est in feed(RangeFilter(), zs[:2500], amp)[500:]:
+            if est.lux_est is not None:
                 judged += 1
                 within += abs(est.lux_est - lux) <= 2000.0
     assert judged > 0.9 * 5 * 2000
@@ -451,15 +448,11 @@ def test_the_light_climbs_from_a_prior_ten_times_too_quiet() -> None:
     own noise reads as light, (c - sigma0) / k, and the average the light is read from
     gets there although its cut starts ten times too tight, since the cut moves out
     with it: within 30 % after one second at 250 Hz."""
-    cfg = FilterConfig(sigma0_m=0.0004)
-    amp, c_true = 500, 0.004
-    lux_true = (c_true - cfg.sigma0_m) / cfg.k_m_per_lux
+    cfg = FilterConfig(sigma0_m=CFG.sigma0_m / 10)  # the readings: CFG's noise, dark
+    amp = 500
+    lux_true = (CFG.sigma0_m - cfg.sigma0_m) / cfg.k_m_per_lux
     for seed in range(3):
-        rng = random.Random(seed)
-        flt = RangeFilter(cfg)
-        s = c_true * cfg.amp_ref / amp
-        zs = [round((2.0 + rng.gauss(0, s)) * 100) / 100 for _ in range(250)]
-        est = feed(flt, zs, amp)[-1]
+        est = feed(RangeFilter(cfg), noisy(random.Random(seed), 2.0, amp, 250), amp)[-1]
         assert est.lux_est is not None
         assert est.lux_est == pytest.approx(lux_true, rel=0.3)
 
