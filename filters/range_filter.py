@@ -387,20 +387,23 @@ class RangeFilter:
         if z is not None:
             # The noise, from the second differences of the raw readings (noise.py).
             s2 = s * s
-            g1 = self._gap + 1
-            self._gap = 0
+            gap = self._gap  # frames missing since the last reading
+            if gap:
+                self._gap = 0
             z1 = self._z1
             z2 = self._z2
-            if z1 is None or g1 > MAX_GAP_FRAMES:
+            if z1 is None or gap >= MAX_GAP_FRAMES:
                 self._z2 = None
             else:
                 self._z2 = z1
                 if z2 is not None:
-                    g2 = self._gap_prev
-                    if g1 + g2 == 2:  # consecutive (each is at least 1)
-                        d = z - 2.0 * z1 + z2
-                    else:
+                    gap_prev = self._gap_prev
+                    if gap or gap_prev:  # bridged over the missing frames
+                        g1 = gap + 1
+                        g2 = gap_prev + 1
                         d = ((z - z1) / g1 - (z1 - z2) / g2) * GAP_NORMALISERS[g1][g2]
+                    else:
+                        d = z - 2.0 * z1 + z2
                     y = (d if d >= 0.0 else -d) * s
                     w = self._fast_w
                     light = self.noise_light
@@ -434,7 +437,7 @@ class RangeFilter:
                     self.noise_fast = self._m1 * sd
                     self.noise_light = self.noise_slow = self._mt * sd
             self._z1 = z
-            self._gap_prev = g1
+            self._gap_prev = gap
             r = self.c2 / s2 + self._q_m2
             if active and t - self._last_accept_ns <= self._stale_ns:
                 x = self.x
@@ -446,7 +449,7 @@ class RangeFilter:
                     qdt = qd * dt
                     dp = dt * p11
                     x += self.v * dt
-                    p00 += dt * (2.0 * p01 + dp) + qdt * dt * (1.0 / 3.0)
+                    p00 += dt * (2.0 * p01 + dp + qdt * (1.0 / 3.0))
                     p01 = p01 + dp + 0.5 * qdt
                     p11 = p11 + qd
                 e = z - x
@@ -496,12 +499,12 @@ class RangeFilter:
                     k1 = p01 / sp
                     self.x = x + k0 * e
                     self.v += k1 * e
-                    self.p00 = p00 - k0 * p00
+                    self.p00 = k0 * r  # p00 - k0 p00, as p00 r / sp
                     p11 = p11 - k1 * p01
                     if p11 < 0.0:  # float rounding at extreme settings
                         self.p01 = self.p11 = 0.0
                     else:
-                        self.p01 = p01 - k0 * p01
+                        self.p01 = k1 * r  # p01 - k0 p01
                         self.p11 = p11
                     self._last_accept_ns = t
                     # Manoeuvre test: a bias in the innovations that their spread
