@@ -26,11 +26,14 @@ evidence for each choice):
    many (a small lag that a noisy reading hides).
    An innovation beyond ``gate_sigmas`` is an ``outlier``; ``step_confirm`` outliers
    that agree with each other restart the track at them (a step).
-5. The published sigma is honest about what P cannot see: sqrt(P00) plus, for each
-   running mean, the part of m^2 that its own scatter (1 - rho) / (1 + rho) times
-   the mean square does not explain: a bias of the track (a lag, a start of
-   motion). On an outlier frame it covers the disagreement with the reading, unless
-   that sigma would pass ``sigma_unreliable_m``: then the frame is a ``dropout``.
+5. The published sigma is honest about what P cannot see: the track's variance plus,
+   for each running mean, the part of m^2 that its own scatter (1 - rho) / (1 + rho)
+   times the mean square does not explain: a bias of the track (a lag, a start of
+   motion). The track's variance is P00 while a manoeuvre lasts and 3/4 of it once
+   the filter has settled after one (``STILL_VAR_RATIO``): P counts an acceleration
+   that a target that stopped, or moves at a constant speed, does not have. On an
+   outlier frame the sigma covers the disagreement with the reading, unless that
+   sigma would pass ``sigma_unreliable_m``: then the frame is a ``dropout``.
    ``stale`` when nothing was accepted for ``stale_after_s``, and on the reading that
    starts the track again after that: one reading alone (a beam back from a surface
    too weak to read, whose first reading mixes two surfaces) is not published until
@@ -82,6 +85,24 @@ DRIFT_SPAN = 5
 readings: it sees a bias too small for the fast test (a third of a noisy reading's
 sigma, left behind by a manoeuvre) and widens sigma by it."""
 
+STILL_VAR_RATIO = 0.75
+"""The track's error variance on a target that does not accelerate, as a share of P00
+once the filter has settled at ``accel_psd``: 3/4, whatever ``accel_psd``, the reading
+variance and the frame period. P is honest for a target whose acceleration is white
+noise of ``accel_psd``; a still target, or one at a constant speed, is quieter than
+that, and 2 sqrt(P00) covered 96-97 % of a still target's frames. The ratio comes from
+the exact error recursion of a constant-velocity Kalman filter run with its own gains
+and no process noise (docs/filter.md, "Honest uncertainty";
+tests/test_filters_range_filter.py)."""
+
+STILL_SETTLE_TAUS = 3.0
+"""After a manoeuvre hold (or a track's start) that error falls from P00 to
+``STILL_VAR_RATIO`` P00 between about 1.5 and 5 tau, tau = (r dt / accel_psd)^(1/4)
+the filter's settling time (r the reading variance, m^2; dt the frame period, s), on
+one curve of t / tau for every r, dt and hold length. The published variance steps
+down at this many tau, the middle of the fall: its sigma stays within 0.93-1.10 of
+the exact one."""
+
 _SATURATED = (Reason.SATURATED,)
 _AMBIENT = (Reason.HIGH_AMBIENT,)
 _WEAK = (Reason.WEAK_SIGNAL,)
@@ -104,6 +125,8 @@ _STABLE = Zone.STABLE
 _MARGINAL = Zone.MARGINAL
 _UNRELIABLE = Zone.UNRELIABLE
 _INF = float("inf")
+_NEVER = 1 << 62
+"""A time, nanoseconds, that no clock reaches: an int, for a cheap compare with one."""
 _INV_MIN_STATS_BIAS = 1.0 / MIN_STATS_BIAS
 _UNCONFIRMED = 1e-12
 """The outlier innovation, metres, of a frame that restarted the track on one reading
@@ -187,6 +210,7 @@ class RangeFilter:
         "_span_min",
         "_span_mins",
         "_stale_ns",
+        "_still_ns",
         "_thr2",
         "_v0var",
         "_z1",
@@ -284,6 +308,7 @@ class RangeFilter:
         self._hold = 0
         self.man_mean = self.drift = self.extra = 0.0
         self.man_power = 1.0
+        self._still_ns = _NEVER
         self._run_n = self._run_away = 0
         self._run_sum = self._run_rsum = self._run_last = self._run_r = 0.0
         self._run_sign = False
@@ -523,11 +548,13 @@ class RangeFilter:
                     if mean2 > self._thr2 * power or drift2 > self._drift_thr2 * power:
                         self._hold = self._hold_frames
                         self.qa = self._qa_hi
+                        self._still_ns = _NEVER
                     elif self._hold:  # a manoeuvre lasts: hold, as for a fresh track
                         hold = self._hold - 1
                         self._hold = hold
                         if not hold:
                             self.qa = self._qa_lo
+                            self._settle(t, r, dt)
                     # What P cannot see: the part of the innovations' running means
                     # that their own scatter does not explain is a bias of the track.
                     excess = mean2 - self._man_noise * power
@@ -560,6 +587,8 @@ class RangeFilter:
             x = self.x
             if x >= self._min_m and x <= self._max_m:
                 var = self.p00
+                if t >= self._still_ns:  # settled after a manoeuvre
+                    var *= STILL_VAR_RATIO
                 if outlier_e:
                     var += 0.25 * outlier_e * outlier_e
                 else:
@@ -690,6 +719,18 @@ class RangeFilter:
         self._hold = self._hold_frames
         self.man_mean = self.drift = self.extra = 0.0
         self.man_power = r_m2
+        self._still_ns = _NEVER
+
+    def _settle(self, t_ns: int, r_m2: float, dt_s: float) -> None:
+        """Schedule the step of the published variance from P00 down to
+        ``STILL_VAR_RATIO`` P00 after a hold that ended at ``t_ns`` on a reading of
+        variance ``r_m2`` (m^2), ``dt_s`` seconds after the frame before it. Without a
+        period (dt 0, a stamp out of order) nothing is scheduled and P00 stays the
+        published variance, on the safe side, until the next hold ends; nor with no
+        process noise, where P00 is the error."""
+        if dt_s > 0.0 and self._qa_lo > 0.0:
+            tau_s = sqrt(sqrt(r_m2 * dt_s / self._qa_lo))
+            self._still_ns = t_ns + round(STILL_SETTLE_TAUS * tau_s * 1e9)
 
     def _predict(self, dt_s: float) -> None:
         """Move the state ``dt_s`` (> 0) seconds ahead without a reading."""
