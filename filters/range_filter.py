@@ -14,7 +14,8 @@ evidence for each choice):
    from the fast average, which follows a cloud within a tenth of a second;
    L_hat = (c - sigma0) / k from the slow average, fed only while the noise is above
    the output step and near its floor (minimum statistics: clutter is not light), is
-   published there and null elsewhere.
+   published there and null elsewhere, and null until it has been measured
+   (``LIGHT_MEASURED_SPANS`` spans of observable readings after a start).
 4. A constant-velocity Kalman filter whose process noise adapts to manoeuvres: it
    runs at ``accel_psd`` (nearly still: it averages a still target like a mean)
    until the innovations carry a bias that their own spread cannot explain, then at
@@ -54,6 +55,7 @@ from lunad.filters.noise import (
     FAST_PRIOR_READINGS,
     GAP_NORMALISERS,
     LIGHT_CUT_SIGMAS,
+    LIGHT_MEASURED_SPANS,
     MAX_GAP_FRAMES,
     MIN_STATS_BIAS,
     MIN_STATS_NEAR,
@@ -209,6 +211,7 @@ class RangeFilter:
         "_span_k",
         "_span_min",
         "_span_mins",
+        "_spans_seen",
         "_stale_ns",
         "_still_ns",
         "_thr2",
@@ -321,6 +324,7 @@ class RangeFilter:
         self._span_mins = [_INF] * MIN_STATS_SPANS
         self._span_min = self._learn_below = _INF  # no floor yet: learn everything
         self._span_i = 0
+        self._spans_seen = 0
         self._span_k = self._span_frames
         self._slow_tick = SLOW_EVERY
         self.lux: float | None = None
@@ -682,7 +686,7 @@ class RangeFilter:
             slow = self._end_span(slow)
         self.noise_slow = slow
         c2 = slow * slow * self._kL - qs2
-        if c2 < obs:
+        if c2 < obs or self._spans_seen < LIGHT_MEASURED_SPANS:
             self.lux = None
         else:
             lux = (sqrt(c2) - self._sigma0) * self._inv_k
@@ -693,6 +697,8 @@ class RangeFilter:
         readings): the floor becomes the least span minimum of the last
         ``MIN_STATS_SPANS``. Returns the slow average, restarted at the floor's mean
         when even the floor rose ``SLOW_RISE_RATIO`` above it (the light rose)."""
+        if self._spans_seen < LIGHT_MEASURED_SPANS:
+            self._spans_seen += 1
         i = self._span_i
         mins = self._span_mins
         mins[i] = self._span_min

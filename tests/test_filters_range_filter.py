@@ -14,7 +14,7 @@ from lunad.filters import (
     Status,
     Zone,
 )
-from lunad.filters.noise import MIN_STATS_BIAS
+from lunad.filters.noise import LIGHT_MEASURED_SPANS, MIN_STATS_BIAS
 from lunad.filters.range_filter import STILL_SETTLE_TAUS, STILL_VAR_RATIO
 
 CFG = FilterConfig()
@@ -545,3 +545,16 @@ def test_the_published_track_variance_is_a_still_targets_true_error(amp: int) ->
                 p00 += flt.p00
     assert 0.85 <= err2 / track <= 1.15
     assert err2 / p00 < 0.85
+
+
+def test_the_light_is_null_until_measured_and_right_from_its_first_figure() -> None:
+    """A filter that starts under 30 klux publishes no light figure for its first
+    LIGHT_MEASURED_SPANS spans of readings (the figure would be the dark prior's), and
+    every figure from there on is within 30 % of the truth."""
+    first_at = LIGHT_MEASURED_SPANS * CFG.noise_frames
+    for seed in range(4):
+        out = feed(RangeFilter(), noisy(random.Random(seed), 3.0, 600, 600, 30_000.0), 600)
+        first = next(i for i, e in enumerate(out) if e.lux_est is not None)
+        assert first_at <= first <= first_at + 5
+        lux = [e.lux_est for e in out[first:]]
+        assert all(x is not None and abs(x - 30_000.0) <= 9_000.0 for x in lux), seed
