@@ -94,8 +94,7 @@ variance and the frame period. P is honest for a target whose acceleration is wh
 noise of ``accel_psd``; a still target, or one at a constant speed, is quieter than
 that, and 2 sqrt(P00) covered 96-97 % of a still target's frames. The ratio comes from
 the exact error recursion of a constant-velocity Kalman filter run with its own gains
-and no process noise (docs/filter.md, "Honest uncertainty";
-tests/test_filters_range_filter.py)."""
+and no process noise (docs/filter.md section 5; tests/test_filters_range_filter.py)."""
 
 STILL_SETTLE_TAUS = 3.0
 """After a manoeuvre hold (or a track's start) that error falls from P00 to
