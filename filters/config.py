@@ -96,7 +96,9 @@ class FilterConfig:
         noise_clip_sigmas: second differences beyond this many of their own
             standard deviations are clipped before they count (steps, spikes).
         lux_observable_sigma_m: below this reading noise, metres, the 1 cm output
-            steps hide the light and ``lux_est`` is null.
+            steps hide the light and ``lux_est`` is null: half the step, where the
+            steps' variance is within 2 % of the noise's wherever the target sits
+            between two of them (noise.py).
         lux_init: ambient light assumed before the noise is measured, lux.
         sigma_floor_m: the published sigma never goes below this, metres: how far
             averaging 1 cm output steps that the noise dithers can be trusted.
@@ -136,7 +138,7 @@ class FilterConfig:
     noise_slow_frames: int = 250
     noise_jump_ratio: float = 1.7
     noise_clip_sigmas: float = 2.0
-    lux_observable_sigma_m: float = 0.004
+    lux_observable_sigma_m: float = 0.005
     lux_init: float = 0.0
     sigma_floor_m: float = 0.001
     hysteresis: float = 0.1
