@@ -479,12 +479,12 @@ def test_the_noise_floors_bias_is_what_white_readings_show() -> None:
 
 def _still_error_share(
     q: float, r: float, dt: float, hold: int, seconds: float
-) -> tuple[float, list[tuple[float, float]]]:
+) -> list[tuple[float, float]]:
     """The exact error of a constant-velocity Kalman filter on a target that does not
     move, run apart from RangeFilter: P follows the model (process noise q, raised to
     the filter's manoeuvre level for ``hold`` readings after the start), A the true
     error covariance under the same gains with no process noise (Joseph form). Returns
-    tau = (r dt / q)^(1/4) and (t / tau, A00 / P00) from the end of the hold on."""
+    (t / tau, A00 / P00) from the end of the hold on, tau = (r dt / q)^(1/4)."""
     q_hold = CFG.manoeuvre_accel_psd
     p00, p01, p11 = r, 0.0, CFG.init_speed_sigma_m_s**2
     a00, a01, a11 = p00, p01, p11
@@ -508,7 +508,7 @@ def _still_error_share(
             a00, a01, a11 = p00, p01, p11
         elif i >= hold:
             curve.append(((i - hold + 1) * dt / tau, a00 / p00))
-    return tau, curve
+    return curve
 
 
 @pytest.mark.parametrize("q", [1e-4, 1e-3])
@@ -523,7 +523,7 @@ def test_a_still_targets_error_settles_at_three_quarters_of_p(
     still target is 3/4 of P00 (0.75-0.77: a little more where tau spans a dozen
     readings only), and the step at 3 tau keeps the sigma within 0.93-1.10 of the
     exact one on the way there."""
-    _, curve = _still_error_share(q, r, dt, hold, seconds=12 * (r * dt / q) ** 0.25 + 0.5)
+    curve = _still_error_share(q, r, dt, hold, seconds=12 * (r * dt / q) ** 0.25 + 0.5)
     assert STILL_VAR_RATIO - 0.005 <= curve[-1][1] <= STILL_VAR_RATIO + 0.02
     for u, share in curve:
         published = 1.0 if u < STILL_SETTLE_TAUS else STILL_VAR_RATIO
