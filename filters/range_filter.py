@@ -741,8 +741,10 @@ class RangeFilter:
         """Move the state ``dt_s`` (> 0) seconds ahead without a reading."""
         p01 = self.p01
         p11 = self.p11
-        q = self.qa * dt_s
+        qd = self.qa * dt_s
+        qdt = qd * dt_s
+        dp = dt_s * p11
         self.x += self.v * dt_s
-        self.p00 += dt_s * (2.0 * p01 + dt_s * p11) + q * dt_s * dt_s * (1.0 / 3.0)
-        self.p01 = p01 + dt_s * p11 + 0.5 * q * dt_s
-        self.p11 = p11 + q
+        self.p00 += dt_s * (2.0 * p01 + dp + qdt * (1.0 / 3.0))
+        self.p01 = p01 + dp + 0.5 * qdt
+        self.p11 = p11 + qd

@@ -483,6 +483,7 @@ def evaluate_run(
     config: FilterConfig | None = None,
 ) -> ScenarioResult:
     """Feed one run to every method and score them against the truth."""
+    config = config or FilterConfig()
     truth = [tr.distance_m for tr in run.truth]
     n = len(truth)
     steps = scenario.step_frames()
@@ -521,7 +522,7 @@ def evaluate_run(
             truth,
             steps,
             away,
-            _hindsight_lux(run, readable, settled, scenario.rate_hz, config or FilterConfig()),
+            _hindsight_lux(run, readable, settled, scenario.rate_hz, config),
             true_lux,
             settled,
         ),
