@@ -334,6 +334,21 @@ class RangeFilter:
         self._last_t_ns: int | None = None
         self._last_accept_ns = 0
 
+    def assume_reading_sigma(self, sigma_m: float, amp: int) -> None:
+        """Take ``sigma_m`` (metres) as the noise of the next reading, of strength
+        ``amp``, as if the fast noise average had measured it: the reading variance r
+        of ``step`` is then the one given (to within the next sample's weight in the
+        average, 1 / ``noise_frames``), while the light is still read from the
+        readings. For ``lunad eval --true-noise``, which tells lunad's tracker the
+        simulator's noise, as the oracle is told it, to separate what learning the
+        noise costs from what the tracker costs; the daemon never calls it."""
+        s = amp * self.inv_amp_ref
+        c2 = sigma_m * sigma_m * s * s
+        self.c2 = c2 if c2 > self._c2_floor else self._c2_floor
+        if self.noise_fast:  # the averages exist (from a chain's second reading on)
+            self.noise_fast = sqrt((self.c2 + self._q_m2 * s * s) / self._kA)
+            self._fast_w = self._fast_keep
+
     def step(self, raw_m: float | None, amp: int, t_mono_ns: int) -> Estimate:
         """Clean one reading.
 

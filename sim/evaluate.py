@@ -191,11 +191,13 @@ class EvalReport:
         noise_scale: the worlds' noise factor.
         scenarios: one result per scenario, world and seed.
         step_cost_us: mean cost of one RangeFilter.step, microseconds.
+        true_noise: whether lunad was told each reading's true sigma (a diagnostic).
     """
 
     noise_scale: float
     scenarios: tuple[ScenarioResult, ...]
     step_cost_us: float
+    true_noise: bool = False
 
     def to_dict(self) -> dict[str, object]:
         """Plain data for JSON."""
@@ -269,16 +271,20 @@ def _median5(run: Run) -> list[float | None]:
 
 
 def _lunad(
-    run: Run, config: FilterConfig | None
+    run: Run, config: FilterConfig | None, true_noise: bool = False
 ) -> tuple[list[float | None], list[float | None], list[float | None], list[bool]]:
     """lunad's estimates, sigmas, lux figures (None where no range is published) and
-    whether each frame was published ``ok``."""
+    whether each frame was published ``ok``. With ``true_noise``, the filter is told
+    each reading's true sigma before it takes the reading (a diagnostic: its tracker
+    with the oracle's knowledge of the noise)."""
     flt = RangeFilter(config)
     est: list[float | None] = []
     sig: list[float | None] = []
     lux: list[float | None] = []
     ok: list[bool] = []
-    for z, amp, t in zip(run.raw_m, run.amp, run.t_ns, strict=True):
+    for z, amp, t, sigma in zip(run.raw_m, run.amp, run.t_ns, run.sigma_m, strict=True):
+        if true_noise and sigma is not None and amp > 0:
+            flt.assume_reading_sigma(sigma, amp)
         e = flt.step(z, amp, t)
         est.append(e.range_m)
         sig.append(e.sigma_m)
@@ -481,8 +487,10 @@ def evaluate_run(
     world: str = "paper",
     seed: int = 0,
     config: FilterConfig | None = None,
+    true_noise: bool = False,
 ) -> ScenarioResult:
-    """Feed one run to every method and score them against the truth."""
+    """Feed one run to every method and score them against the truth. With
+    ``true_noise``, lunad's filter is told each reading's true sigma (``_lunad``)."""
     config = config or FilterConfig()
     truth = [tr.distance_m for tr in run.truth]
     n = len(truth)
@@ -503,7 +511,7 @@ def evaluate_run(
         run.raw_m, run.amp, run.t_ns, run.sigma_m, oracle_score, max_coast_s=ORACLE_MAX_COAST_S
     )
     m_est = _median5(run)
-    l_est, l_sig, l_lux, l_ok = _lunad(run, config)
+    l_est, l_sig, l_lux, l_ok = _lunad(run, config, true_noise)
     true_lux = [tr.lux for tr in run.truth]
     settled = _lux_settled(run, scenario.rate_hz)
     readable = [
@@ -578,20 +586,21 @@ def evaluate_all(
     seeds: Sequence[int] = (0,),
     noise_scale: float = 1.0,
     config: FilterConfig | None = None,
+    true_noise: bool = False,
 ) -> EvalReport:
     """Evaluate every scenario in every world at every seed; time RangeFilter.step on
-    the longest run."""
+    the longest run. With ``true_noise``, lunad is told each reading's true sigma."""
     results = []
     longest: Run | None = None
     for sc in scenarios:
         for world in worlds:
             for seed in seeds:
                 run = simulate(sc, world, noise_scale, seed)
-                results.append(evaluate_run(sc, run, world, seed, config))
+                results.append(evaluate_run(sc, run, world, seed, config, true_noise))
                 if longest is None or len(run.t_ns) > len(longest.t_ns):
                     longest = run
     cost = step_cost_us(longest, config) if longest is not None else 0.0
-    return EvalReport(noise_scale, tuple(results), cost)
+    return EvalReport(noise_scale, tuple(results), cost, true_noise)
 
 
 @dataclass(frozen=True, slots=True)
@@ -667,8 +676,14 @@ def _fmt(v: float | None, scale: float = 1.0, digits: int = 2) -> str:
 
 def format_table(report: EvalReport, targets: Targets | None = None) -> str:
     """The human-readable report ``lunad eval`` prints: one line per run and method."""
+    told = (
+        "; lunad told each reading's true sigma, as the oracle is (a diagnostic)"
+        if report.true_noise
+        else ""
+    )
     lines = [
-        f"lunad eval: worlds paper and shot (sim/evaluate.py), noise x{report.noise_scale:g}",
+        f"lunad eval: worlds paper and shot (sim/evaluate.py), noise x{report.noise_scale:g}"
+        + told,
         "",
     ]
     head = (

@@ -587,3 +587,19 @@ def test_the_light_is_read_only_where_the_steps_keep_the_noises_size() -> None:
 
     assert worst(CFG.lux_observable_sigma_m / CFG.resolution_m) < 0.025
     assert worst(0.4) > 0.08
+
+
+def test_a_reading_sigma_assumed_is_the_one_the_readings_are_weighted_by() -> None:
+    """``assume_reading_sigma`` (for ``lunad eval --true-noise``) sets the reading
+    variance: under a dark prior, with 13 cm of noise told before each reading, the
+    sigma the filter weights each reading by is within 10 % of it from the first
+    reading on (the reading's own sample moves the average by at most 1/25 of its clip),
+    where learning it takes dozens of readings."""
+    amp = 300
+    sd = sigma_of(amp, 60_000.0)
+    flt = RangeFilter()
+    s = amp / CFG.amp_ref
+    for k, z in enumerate(noisy(random.Random(1), 3.0, amp, 200, 60_000.0)):
+        flt.assume_reading_sigma(sd, amp)
+        flt.step(z, amp, k * FRAME_NS)
+        assert math.sqrt(flt.c2) / s == pytest.approx(sd, rel=0.1)
