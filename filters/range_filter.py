@@ -11,11 +11,14 @@ evidence for each choice):
 3. The noise: c = sigma0 + k L (paper eq. 2) measured from the second differences of
    the raw readings (noise.py), which smooth motion and steps do not move. The
    reading's variance is r = c^2 / S^2 + q (paper eq. 3, q the 1 cm steps) with c
-   from the fast average, which follows a cloud within a tenth of a second;
+   from the fast average, which follows a change of light within about 0.3 s;
    L_hat = (c - sigma0) / k from the slow average, fed only while the noise is above
    the output step and near its floor (minimum statistics: clutter is not light), is
    published there and null elsewhere, and null until it has been measured
-   (``LIGHT_MEASURED_SPANS`` spans of observable readings after a start).
+   (``LIGHT_MEASURED_SPANS`` spans of observable readings after a start). After a
+   start the fast average starts again from the median of the first
+   ``NOISE_BOOT_SAMPLES`` second differences, and the track's covariance, built with
+   the prior's reading variance, is scaled to the measured one.
 4. A constant-velocity Kalman filter whose process noise adapts to manoeuvres: it
    runs at ``accel_psd`` (nearly still: it averages a still target like a mean)
    until the innovations carry a bias that their own spread cannot explain, then at
@@ -60,6 +63,8 @@ from lunad.filters.noise import (
     MIN_STATS_BIAS,
     MIN_STATS_NEAR,
     MIN_STATS_SPANS,
+    NOISE_BOOT_SAMPLES,
+    NORMAL_MEDIAN_ABS,
     SLOW_EVERY,
     SLOW_RESTART_SPANS,
     SLOW_RISE_RATIO,
@@ -129,6 +134,7 @@ _INF = float("inf")
 _NEVER = 1 << 62
 """A time, nanoseconds, that no clock reaches: an int, for a cheap compare with one."""
 _INV_MIN_STATS_BIAS = 1.0 / MIN_STATS_BIAS
+_INV_NORMAL_MEDIAN_ABS = 1.0 / NORMAL_MEDIAN_ABS
 _UNCONFIRMED = 1e-12
 """The outlier innovation, metres, of a frame that restarted the track on one reading
 (``EDGE_RUN``): published as an outlier is, ``degraded``, with no cover to add."""
@@ -153,6 +159,7 @@ class RangeFilter:
     __slots__ = (
         "_amp_strong",
         "_amp_strong_again",
+        "_boot",
         "_c2_floor",
         "_clip_a",
         "_confirm",
@@ -192,6 +199,7 @@ class RangeFilter:
         "_q_m2",
         "_qa_hi",
         "_qa_lo",
+        "_refresh_ticks",
         "_run_away",
         "_run_gap",
         "_run_last",
@@ -294,6 +302,9 @@ class RangeFilter:
         self._slow_keep = min(1.0, SLOW_EVERY / c.noise_slow_frames)
         self._slow_restart_w = min(1.0, SLOW_EVERY / (SLOW_RESTART_SPANS * c.noise_frames))
         self._span_frames = max(1, round(c.noise_frames / SLOW_EVERY))
+        # After a stretch where the light cannot be seen, the slow side waits until the
+        # light's fast average has taken a span of the new readings (noise.py).
+        self._refresh_ticks = c.noise_frames
         self._jump = c.noise_jump_ratio
         self._obs2 = c.lux_observable_sigma_m * c.lux_observable_sigma_m
         self._c2_floor = 0.01 * c.sigma0_m * c.sigma0_m
@@ -330,6 +341,7 @@ class RangeFilter:
         self._z1: float | None = None
         self._z2: float | None = None
         self._gap = self._gap_prev = 0
+        self._boot: list[float] | None = []
         self.zone = _UNRELIABLE
         self._last_t_ns: int | None = None
         self._last_accept_ns = 0
@@ -449,6 +461,8 @@ class RangeFilter:
                         d = z - 2.0 * z1 + z2
                     y = (d if d >= 0.0 else -d) * s
                     w = self._fast_w
+                    if w > self._fast_keep:  # still a running mean, after a start
+                        w = self._learning(y, s2, w)
                     light = self.noise_light
                     fast = self.noise_fast
                     lim = self._clip_a * fast
@@ -459,15 +473,14 @@ class RangeFilter:
                     else:
                         self.noise_light = light + w * (y - light)
                     fast += w * (y - fast)
-                    if w > self._fast_keep:
-                        self._fast_w = w / (1.0 + w)
                     self.noise_fast = fast
                     qs2 = self._q_m2 * s2
                     c2 = fast * fast * self._kA - qs2
                     self.c2 = c2 if c2 > self._c2_floor else self._c2_floor
                     obs = self._obs2 * s2
                     if c2 < obs:  # below the output step: not observable,
-                        self.lux = None  # and the slow average keeps what it last saw
+                        self.lux = None  # and the slow average keeps what it last saw,
+                        self._slow_tick = self._refresh_ticks  # until the fast one is fresh
                     else:
                         tick = self._slow_tick - 1
                         if tick:  # the slow side samples the fast one (SLOW_EVERY)
@@ -673,6 +686,35 @@ class RangeFilter:
         if t - self._last_accept_ns > self._stale_ns:
             reasons = (*reasons, Reason.STALE) if reasons else _STALE
         return _new(Estimate, (None, None, self.lux, s, _DROPOUT, reasons, _UNRELIABLE))
+
+    def _learning(self, y: float, s2: float, w: float) -> float:
+        """Take the sample ``y`` (|d2| S, metres) while the fast noise average is still a
+        running mean (after a start), and return its weight ``w`` in the averages.
+        The ``NOISE_BOOT_SAMPLES``-th sample after a start ends the boot (noise.py):
+        the fast average starts again from the samples' median, counted as that many
+        readings, and the track's covariance, built with the prior's reading variance,
+        is scaled to the new one. ``s2`` is S^2 of the reading."""
+        boot = self._boot
+        if boot is not None:
+            boot.append(y)
+            if len(boot) >= NOISE_BOOT_SAMPLES:
+                self._boot = None
+                sd = sorted(boot)[len(boot) // 2] * _INV_NORMAL_MEDIAN_ABS
+                qs2 = self._q_m2 * s2
+                c2 = sd * sd * (1.0 / 6.0) - qs2
+                if c2 < self._c2_floor:
+                    c2 = self._c2_floor
+                    sd = sqrt(6.0 * (c2 + qs2))
+                if self.active:
+                    ratio = (c2 + qs2) / (self.c2 + qs2)  # r_new / r_old: the same S
+                    self.p00 *= ratio
+                    self.p01 *= ratio
+                    self.p11 *= ratio
+                self.c2 = c2
+                self.noise_fast = self._m1 * sd
+                w = 1.0 / (1.0 + NOISE_BOOT_SAMPLES)
+        self._fast_w = w / (1.0 + w)
+        return w
 
     def _slow_side(self, fast: float, qs2: float, obs: float) -> None:
         """Feed ``fast``, the fast average that the light is read from (``noise_light``,
