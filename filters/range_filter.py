@@ -41,7 +41,9 @@ evidence for each choice):
    ``stale`` when nothing was accepted for ``stale_after_s``, and on the reading that
    starts the track again after that: one reading alone (a beam back from a surface
    too weak to read, whose first reading mixes two surfaces) is not published until
-   the next one agrees with it.
+   the next one agrees with it. ``stale`` too after a start until the boot has
+   measured the noise (for at most ``stale_after_s`` from the first track): the
+   sigma would be the prior's guess.
 6. Zone (zone.py) from L_hat (0 where unobservable), S and the published sigma.
 
 One implementation, flat: every frame pays for this at 250 Hz on a Pi Zero 2, and a
@@ -124,6 +126,7 @@ _WEAK_OUTLIER = (Reason.WEAK_SIGNAL, Reason.OUTLIER)
 _OUTLIER_AMBIENT = (Reason.OUTLIER, Reason.HIGH_AMBIENT)
 _NONE: tuple[Reason, ...] = ()
 _STALE = (Reason.STALE,)
+_WEAK_STALE = (Reason.WEAK_SIGNAL, Reason.STALE)
 _OK = Status.OK
 _DEGRADED = Status.DEGRADED
 _DROPOUT = Status.DROPOUT
@@ -160,6 +163,8 @@ class RangeFilter:
         "_amp_strong",
         "_amp_strong_again",
         "_boot",
+        "_boot_ok",
+        "_boot_until_ns",
         "_c2_floor",
         "_clip_a",
         "_confirm",
@@ -305,6 +310,10 @@ class RangeFilter:
         # After a stretch where the light cannot be seen, the slow side waits until the
         # light's fast average has taken a span of the new readings (noise.py).
         self._refresh_ticks = c.noise_frames
+        # The boot ends on the NOISE_BOOT_SAMPLES-th sample of the fast average's running
+        # start, which lasts while its weight 1 / (FAST_PRIOR_READINGS + k) is above
+        # 1 / noise_frames: a shorter average has no boot.
+        self._boot_ok = c.noise_frames > FAST_PRIOR_READINGS + NOISE_BOOT_SAMPLES
         self._jump = c.noise_jump_ratio
         self._obs2 = c.lux_observable_sigma_m * c.lux_observable_sigma_m
         self._c2_floor = 0.01 * c.sigma0_m * c.sigma0_m
@@ -341,7 +350,8 @@ class RangeFilter:
         self._z1: float | None = None
         self._z2: float | None = None
         self._gap = self._gap_prev = 0
-        self._boot: list[float] | None = []
+        self._boot: list[float] | None = [] if self._boot_ok else None
+        self._boot_until_ns = _NEVER
         self.zone = _UNRELIABLE
         self._last_t_ns: int | None = None
         self._last_accept_ns = 0
@@ -353,7 +363,9 @@ class RangeFilter:
         average, 1 / ``noise_frames``), while the light is still read from the
         readings. For ``lunad eval --true-noise``, which tells lunad's tracker the
         simulator's noise, as the oracle is told it, to separate what learning the
-        noise costs from what the tracker costs; the daemon never calls it."""
+        noise costs from what the tracker costs; the daemon never calls it. A noise told
+        needs no boot (noise.py): the estimate is published from the first reading."""
+        self._boot = None
         s = amp * self.inv_amp_ref
         c2 = sigma_m * sigma_m * s * s
         self.c2 = c2 if c2 > self._c2_floor else self._c2_floor
@@ -597,6 +609,8 @@ class RangeFilter:
                 self._last_accept_ns = t
                 if active:  # after a stale stretch: held back until a reading agrees
                     reasons = (*reasons, Reason.STALE) if reasons else _STALE
+                elif self._boot is not None:  # the first track: the noise has until
+                    self._boot_until_ns = t + self._stale_ns  # then to be measured
         else:
             self._gap += 1
             if active:
@@ -614,6 +628,9 @@ class RangeFilter:
                 reasons = _WEAK_OUTLIER
             elif outlier_e * outlier_e > self._outlier_drop2:  # a sigma that covers it
                 reasons = _OUTLIER  # would say "unreliable": the robot gets no figure
+        if self._boot is not None and not reasons and t < self._boot_until_ns:
+            # The noise not measured yet: no sigma to state (noise.py).
+            reasons = _WEAK_STALE if marginal else _STALE
         if not reasons and self.active:
             x = self.x
             if x >= self._min_m and x <= self._max_m:
@@ -683,7 +700,7 @@ class RangeFilter:
                 return _new(Estimate, (x, sigma, lux_out, s, _DEGRADED, reasons, zone))
             reasons = _CLOSE if x < self._min_m else _FAR
         self.zone = _UNRELIABLE
-        if t - self._last_accept_ns > self._stale_ns:
+        if t - self._last_accept_ns > self._stale_ns and reasons is not _STALE:
             reasons = (*reasons, Reason.STALE) if reasons else _STALE
         return _new(Estimate, (None, None, self.lux, s, _DROPOUT, reasons, _UNRELIABLE))
 

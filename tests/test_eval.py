@@ -200,7 +200,7 @@ def test_cli_true_noise_is_said_and_tells_lunad_the_noise(
 ) -> None:
     """``--true-noise`` is a diagnostic, and the report says so; told the noise, lunad
     loses less to the oracle where the light jumps (cloud_flicker in the paper world,
-    seed 7: 2.33x the oracle learning the noise, 1.19x told it)."""
+    seed 7: 2.48x the oracle learning the noise, 1.19x told it)."""
     argv = ["--scenario", "static", "--duration", "1", "--world", "paper"]
     assert run_cli([*argv, "--true-noise", "--format", "json"]) == 0
     assert json.loads(capsys.readouterr().out)["true_noise"] is True

@@ -15,7 +15,7 @@ from lunad.filters import (
     Status,
     Zone,
 )
-from lunad.filters.noise import LIGHT_MEASURED_SPANS, MIN_STATS_BIAS
+from lunad.filters.noise import LIGHT_MEASURED_SPANS, MIN_STATS_BIAS, NOISE_BOOT_SAMPLES
 from lunad.filters.range_filter import STILL_SETTLE_TAUS, STILL_VAR_RATIO
 
 CFG = FilterConfig()
@@ -342,7 +342,9 @@ def test_a_clock_that_starts_again_starts_the_filter_afresh() -> None:
     feed(flt, before, 1800, k0=900_000)  # an hour of uptime, at 250 Hz
     replayed = feed(flt, after, 900, k0=1250)  # 5 s after boot
     assert replayed == feed(RangeFilter(), after, 900, k0=1250)
-    assert replayed[0].range_m == pytest.approx(6.0, abs=0.1)
+    first = next(e for e in replayed if e.range_m is not None)  # once the noise is measured
+    assert replayed.index(first) <= 2 + NOISE_BOOT_SAMPLES
+    assert first.range_m == pytest.approx(6.0, abs=0.1)
 
 
 def test_a_frame_stamped_early_does_not_count_its_time_twice() -> None:
@@ -370,10 +372,14 @@ def test_rounding_never_makes_the_covariance_negative() -> None:
     cfg = FilterConfig(resolution_m=1e-6, init_speed_sigma_m_s=1000.0, amp_ref=1.0, accel_psd=0.0)
     flt = RangeFilter(cfg)
     t = 0
+    published = 0
     for dt in (0, 300_000_000, *[FRAME_NS] * 20):  # a first gap, then 250 Hz
         t += dt
         est = flt.step(2.0, 2000, t)
-        assert est.sigma_m is not None and est.sigma_m >= 0.0
+        if est.range_m is not None:  # from the boot's last sample on (noise.py)
+            assert est.sigma_m is not None and est.sigma_m >= 0.0
+            published += 1
+    assert published >= 10
 
 
 @pytest.mark.parametrize(
@@ -595,8 +601,10 @@ def test_the_first_readings_noise_is_measured_not_taken_from_the_prior() -> None
     NOISE_BOOT_SAMPLES second differences set the reading noise (at the 13th reading
     the median over 100 starts is 0.93 of the truth; the winsorised average alone,
     whose clip follows its own value, is still at 0.44 of it), and the track, whose
-    first readings were weighted by the prior's variance, is scaled with it: over the
-    first 100 frames 2 sigma covers 90 % of the errors (82 % without the boot)."""
+    first readings were weighted by the prior's variance, is scaled with it. Until
+    then nothing is published (the first 10 frames): over the first 100 frames 2
+    sigma covers 94 % of the published errors (82 % without the boot, every frame
+    published)."""
     amp = 300
     lux = 60_000.0
     sd = sigma_of(amp, lux)
@@ -614,8 +622,8 @@ def test_the_first_readings_noise_is_measured_not_taken_from_the_prior() -> None
                 inside += abs(e.range_m - 3.0) <= 2.0 * e.sigma_m
     sorted13 = sorted(at13)
     assert 0.8 <= sorted13[len(sorted13) // 2] <= 1.25
-    assert published > 0.9 * 100 * 100
-    assert inside / published >= 0.85
+    assert published > 0.85 * 100 * 100
+    assert inside / published >= 0.9
 
 
 def test_after_a_close_target_the_light_waits_for_the_new_readings() -> None:
