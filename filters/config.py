@@ -88,7 +88,9 @@ class FilterConfig:
         step_confirm: this many consecutive outliers that agree with each other are
             a real step: the track restarts there.
         noise_frames: readings the fast noise average spans (noise.py): it follows
-            a cloud or a lamp, and weights each reading (r = c^2 / S^2 + q).
+            a cloud or a lamp, and weights each reading (r = c^2 / S^2 + q). Above
+            17 the noise is booted from the first readings after a start and no
+            estimate is published until then (noise.py, ``NOISE_BOOT_SAMPLES``).
         noise_slow_frames: readings the slow noise average spans: the one
             ``lux_est``, the zone and ``high_ambient`` use.
         noise_jump_ratio: when the fast and slow averages part by more than this

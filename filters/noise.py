@@ -80,9 +80,10 @@ tests/test_filters_range_filter.py), and at low light the 2 klux tolerance is ab
 strong return's quantisation, which the next, weaker target's q S^2 does not
 subtract: the slow side waits until the light's fast average has taken
 ``noise_frames`` observable readings of the new target before it samples it again. A
-wall at 4.13 m under 300 lux after a box at 1.21 m: 83 % of the lux figures within
-the 2 klux tolerance, now 98 % (a test checks it); ``obstacles`` in the paper world,
-``lunad eval`` seeds 0-8: 74-100 %, now 87-100 %.
+wall at 4.13 m under 300 lux after a box at 1.21 m: 98 % of the lux figures within
+the 2 klux tolerance, against 83 % with the slow side sampling it at once (a test
+checks it); ``obstacles`` in the paper world, ``lunad eval`` seeds 0-8: 87-100 % of
+settled frames, against 74-100 %.
 """
 
 from __future__ import annotations
@@ -126,13 +127,9 @@ after about 60 readings, and the track has meanwhile counted its first readings 
 some twenty later ones each. ``lunad eval`` (seeds 0-2 and 3-8): 22 and 74 targets
 missed against 23 and 78 (RMSE against the oracle 5 and 20 against 8 and 23), with a
 5-sigma miss at 0.58 % on room_sweep in the shot world among the 22; 7 and 11 samples
-missed 23 and 76, 23 and 73; without the scaling of the covariance, 25 and 79.
-Until the boot ends no estimate is published (``stale``; for at most
-``stale_after_s`` from the first track, for readings too gappy to measure): its sigma
-would be the prior's guess. That took the runs with bad outputs (a published estimate
-more than 0.3 m off) on seeds 0-2, 3-8 and 20-29 from 2, 8 and 13 to 0, 2 and 7, for
-23, 70 and 116 targets missed in all against 22, 74 and 119 (two more 2-sigma
-coverages over 99 % on seeds 0-2, at 99.0-99.1 %)."""
+missed 23 and 76, 23 and 73; without the scaling of the covariance, 25 and 79. Until
+the boot ends the estimate is not published (range_filter.py; docs/filter.md section
+3 has the figures)."""
 NORMAL_MEDIAN_ABS = 0.6744897501960817
 """The median of |Z| for standard normal Z (sqrt(2) erfinv(1/2)): the median absolute
 second difference over this is its standard deviation."""

@@ -43,7 +43,10 @@ evidence for each choice):
    too weak to read, whose first reading mixes two surfaces) is not published until
    the next one agrees with it. ``stale`` too after a start until the boot has
    measured the noise (for at most ``stale_after_s`` from the first track): the
-   sigma would be the prior's guess.
+   sigma would be the prior's guess, and a run's first track published from its
+   first reading came out 0.3-0.4 m off with a sigma of 5-9 cm where the noise was
+   three times the prior's (runs with such bad outputs on ``lunad eval`` seeds 0-2,
+   3-8 and 20-29: 0, 2 and 7 against 2, 8 and 13; docs/filter.md section 3).
 6. Zone (zone.py) from L_hat (0 where unobservable), S and the published sigma.
 
 One implementation, flat: every frame pays for this at 250 Hz on a Pi Zero 2, and a
@@ -365,6 +368,8 @@ class RangeFilter:
         simulator's noise, as the oracle is told it, to separate what learning the
         noise costs from what the tracker costs; the daemon never calls it. A noise told
         needs no boot (noise.py): the estimate is published from the first reading."""
+        if amp <= 0:
+            raise ValueError(f"assume_reading_sigma: amp must be above 0, got {amp!r}")
         self._boot = None
         s = amp * self.inv_amp_ref
         c2 = sigma_m * sigma_m * s * s
@@ -493,6 +498,7 @@ class RangeFilter:
                     if c2 < obs:  # below the output step: not observable,
                         self.lux = None  # and the slow average keeps what it last saw,
                         self._slow_tick = self._refresh_ticks  # until the fast one is fresh
+                        # (near the bound, a frame in a few: the light is not read there)
                     else:
                         tick = self._slow_tick - 1
                         if tick:  # the slow side samples the fast one (SLOW_EVERY)
@@ -700,7 +706,7 @@ class RangeFilter:
                 return _new(Estimate, (x, sigma, lux_out, s, _DEGRADED, reasons, zone))
             reasons = _CLOSE if x < self._min_m else _FAR
         self.zone = _UNRELIABLE
-        if t - self._last_accept_ns > self._stale_ns and reasons is not _STALE:
+        if t - self._last_accept_ns > self._stale_ns:
             reasons = (*reasons, Reason.STALE) if reasons else _STALE
         return _new(Estimate, (None, None, self.lux, s, _DROPOUT, reasons, _UNRELIABLE))
 

@@ -208,6 +208,7 @@ def test_cli_true_noise_is_said_and_tells_lunad_the_noise(
     assert "told each reading's true sigma" in capsys.readouterr().out
     assert run_cli(argv) == 0
     assert "true sigma" not in capsys.readouterr().out
+    assert run_cli([*argv, "--true-noise", "--check"]) == cmd_eval.EXIT_CONFIG
     scenario = load_scenario("cloud_flicker")
     run = ev.simulate(scenario, "paper", 1.0, 7)
     learnt = ev.evaluate_run(scenario, run, "paper", 7).vs_oracle

@@ -665,6 +665,8 @@ def test_a_reading_sigma_assumed_is_the_one_the_readings_are_weighted_by() -> No
         flt.assume_reading_sigma(sd, amp)
         flt.step(z, amp, k * FRAME_NS)
         assert math.sqrt(flt.c2) / s == pytest.approx(sd, rel=0.1)
+    with pytest.raises(ValueError, match="amp"):
+        flt.assume_reading_sigma(sd, 0)
 
 
 def test_the_reading_noise_follows_a_change_of_light_within_a_third_of_a_second() -> None:

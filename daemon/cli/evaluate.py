@@ -57,7 +57,8 @@ examples:
   lunad eval --list                           names of the built-in scenarios
   lunad eval --check                          exit 1 when a target is missed
   lunad eval --true-noise --scenario cloud_flicker
-                                              lunad told the true noise: what is the tracker's"""
+                                              lunad told the true noise: what it still loses
+                                              to the oracle is its tracker's"""
 
 
 def _positive(text: str) -> float:
@@ -143,6 +144,9 @@ def run(args: argparse.Namespace) -> int:
         for name in builtin_scenarios():
             print(f"{name:<18} {load_scenario(name).description}")
         return 0
+    if args.check and args.true_noise:
+        log.error("--check judges lunad as the daemon runs it; --true-noise is a diagnostic")
+        return EXIT_CONFIG
     names = args.scenario or list(builtin_scenarios())
     try:
         scenarios = [load_scenario(n) for n in names]
