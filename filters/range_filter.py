@@ -497,8 +497,9 @@ class RangeFilter:
                     obs = self._obs2 * s2
                     if c2 < obs:  # below the output step: not observable,
                         self.lux = None  # and the slow average keeps what it last saw,
-                        self._slow_tick = self._refresh_ticks  # until the fast one is fresh
-                        # (near the bound, a frame in a few: the light is not read there)
+                        # until the fast one is fresh; near the bound, where one frame
+                        # in a few is unobservable, the light is then not read at all
+                        self._slow_tick = self._refresh_ticks
                     else:
                         tick = self._slow_tick - 1
                         if tick:  # the slow side samples the fast one (SLOW_EVERY)
