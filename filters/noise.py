@@ -200,6 +200,14 @@ def truncated_abs_mean(cut_sigmas: float) -> float:
     return math.sqrt(2.0 / math.pi) * (1.0 - math.exp(-0.5 * c * c)) / inside
 
 
+def d2_scale(c2_m2: float, qs2_m2: float) -> float:
+    """The standard deviation of the statistic d2 S, metres, for a reading noise c^2
+    (``c2_m2``, m^2 at S = 1) and the output step's share q S^2 (``qs2_m2``, m^2):
+    sqrt(6 (c^2 + q S^2)), var(d2) = 6 (sigma^2 + q) times S^2. An average of |d2| S
+    winsorised at C of it is m1(C) times this, one truncated there mt(C) times."""
+    return math.sqrt(6.0 * (c2_m2 + qs2_m2))
+
+
 def gap_normaliser(g1: int, g2: int) -> float:
     """Factor that gives the divided second difference over frame counts ``g1`` (newest
     pair) and ``g2`` the variance 6 sigma^2 of a plain one: sqrt(6 / (1/g1^2 +

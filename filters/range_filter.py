@@ -73,6 +73,7 @@ from lunad.filters.noise import (
     SLOW_EVERY,
     SLOW_RESTART_SPANS,
     SLOW_RISE_RATIO,
+    d2_scale,
     truncated_abs_mean,
     winsorised_abs_mean,
 )
@@ -375,7 +376,7 @@ class RangeFilter:
         c2 = sigma_m * sigma_m * s * s
         self.c2 = c2 if c2 > self._c2_floor else self._c2_floor
         if self.noise_fast:  # the averages exist (from a chain's second reading on)
-            self.noise_fast = sqrt((self.c2 + self._q_m2 * s * s) / self._kA)
+            self.noise_fast = self._m1 * d2_scale(self.c2, self._q_m2 * s * s)
             self._fast_w = self._fast_keep
 
     def step(self, raw_m: float | None, amp: int, t_mono_ns: int) -> Estimate:
@@ -508,7 +509,7 @@ class RangeFilter:
                             self._slow_tick = SLOW_EVERY
                             self._slow_side(self.noise_light, qs2, obs)
                 elif self.noise_fast == 0.0:  # the first pair: the configured prior
-                    sd = sqrt(6.0 * (self.c2 + self._q_m2 * s2))
+                    sd = d2_scale(self.c2, self._q_m2 * s2)
                     self.noise_fast = self._m1 * sd
                     self.noise_light = self.noise_slow = self._mt * sd
             self._z1 = z
@@ -728,7 +729,7 @@ class RangeFilter:
                 c2 = sd * sd * (1.0 / 6.0) - qs2
                 if c2 < self._c2_floor:
                     c2 = self._c2_floor
-                    sd = sqrt(6.0 * (c2 + qs2))
+                    sd = d2_scale(c2, qs2)
                 if self.active:
                     ratio = (c2 + qs2) / (self.c2 + qs2)  # r_new / r_old: the same S
                     self.p00 *= ratio
