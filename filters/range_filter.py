@@ -64,6 +64,7 @@ from lunad.filters.noise import (
     GAP_NORMALISERS,
     LIGHT_CUT_SIGMAS,
     LIGHT_MEASURED_SPANS,
+    LIGHT_WAIT_SPANS,
     MAX_GAP_FRAMES,
     MIN_STATS_BIAS,
     MIN_STATS_NEAR,
@@ -171,6 +172,7 @@ class RangeFilter:
         "_boot_until_ns",
         "_c2_floor",
         "_clip_a",
+        "_clip_step",
         "_confirm",
         "_cut_a",
         "_drift_gain",
@@ -301,6 +303,9 @@ class RangeFilter:
         m1 = winsorised_abs_mean(c.noise_clip_sigmas)
         self._m1 = m1
         self._clip_a = c.noise_clip_sigmas / m1
+        # The clip never goes below noise_clip_sigmas of d2's scatter for the output
+        # step's noise alone (noise.py, "A still, quantised target").
+        self._clip_step = c.noise_clip_sigmas * sqrt(6.0 * self._q_m2)
         self._kA = 1.0 / (6.0 * m1 * m1)
         mt = truncated_abs_mean(LIGHT_CUT_SIGMAS)
         self._mt = mt
@@ -312,8 +317,9 @@ class RangeFilter:
         self._slow_restart_w = min(1.0, SLOW_EVERY / (SLOW_RESTART_SPANS * c.noise_frames))
         self._span_frames = max(1, round(c.noise_frames / SLOW_EVERY))
         # After a stretch where the light cannot be seen, the slow side waits until the
-        # light's fast average has taken a span of the new readings (noise.py).
-        self._refresh_ticks = c.noise_frames
+        # light's fast average has taken LIGHT_WAIT_SPANS spans of the new readings
+        # (noise.py).
+        self._refresh_ticks = LIGHT_WAIT_SPANS * c.noise_frames
         # The boot ends on the NOISE_BOOT_SAMPLES-th sample of the fast average's running
         # start, which lasts while its weight 1 / (FAST_PRIOR_READINGS + k) is above
         # 1 / noise_frames: a shorter average has no boot.
@@ -342,7 +348,7 @@ class RangeFilter:
         c0 = c.sigma0_m + c.k_m_per_lux * c.lux_init
         self.c2 = c0 * c0
         self.noise_fast = self.noise_light = self.noise_slow = 0.0
-        self._slow_w = self._slow_restart_w
+        self._slow_w = 1.0  # its first sample replaces the prior: a running mean
         self._fast_w = 1.0 / (1.0 + FAST_PRIOR_READINGS)
         self._span_mins = [_INF] * MIN_STATS_SPANS
         self._span_min = self._learn_below = _INF  # no floor yet: learn everything
@@ -487,6 +493,9 @@ class RangeFilter:
                     if y > lim:  # clipped: and beyond the light's cut, not light at all
                         if y < self._cut_a * light:
                             self.noise_light = light + w * (y - light)
+                        q_lim = self._clip_step * s
+                        if lim < q_lim:  # never below the output step's own scatter
+                            lim = q_lim if y > q_lim else y
                         y = lim
                     else:
                         self.noise_light = light + w * (y - light)
