@@ -28,9 +28,9 @@ The statistic is a running mean of |d2| S (S of the newest reading) over
 - for the light, truncated at ``LIGHT_CUT_SIGMAS``: a sample that far out is a step,
   an edge or a spike, and is left out, so that it moves the light not at all.
   E[|d2| given |d2| < C sd] = mt(C) sd replaces m1 in the formula above. Only a sample
-  the first average clips is tested against the cut (the cut lies beyond the clip
-  while the two averages agree; a sample the first takes whole, the light takes too),
-  which spares the common frame the test.
+  the first average clips at its own value is tested against the cut (the cut lies
+  beyond the clip while the two averages agree; a sample the first takes whole, the
+  light takes too), which spares the common frame the test.
 
 L_hat = (c - sigma0) / k, the paper's eq. 2 inverted, is read from the second. Two
 averages of it run side by side: the fast one (``noise_frames``) that follows a cloud
@@ -42,9 +42,10 @@ fast one from the prior, ``FAST_PRIOR_READINGS``; the slow one from its first sa
 after a start, and from the fast one, ``SLOW_RESTART_SPANS``, after a change of light)
 until it spans its length, so it settles as fast as its readings allow. The slow one
 does not keep the prior: its lux is not published before ``LIGHT_MEASURED_SPANS``
-anyway, and the prior, |d2| S of the first pair's S with its step included, held a
-target that moved off from a close start at a few klux in the dark (``lunad eval``,
-seeds 0-8 and 10-29: 307 targets missed against 316 with the prior kept). The
+anyway. The prior is |d2| S at the first pair's S, the output step included; a target
+that starts close and then moves off carried it, and read a few klux in the dark
+(``lunad eval``, seeds 0-8 and 10-29: 307 targets missed against 316 with the prior
+kept). The
 fast one's prior is a guess too, so it starts again, counted as
 ``NOISE_BOOT_SAMPLES`` readings, from the median of the first that many second
 differences after a start. The slow one is fed only while the noise is observable
@@ -90,16 +91,17 @@ before it samples it again. A wall at 4.13 m under 300 lux after a box at 1.21 m
 % of the lux figures within the 2 klux tolerance (98 % after one span), against 83 %
 with the slow side sampling it at once (a test checks it).
 
-A still, quantised target: readings that repeat one centimetre give second
-differences of 0, and a clip that follows the average's own value would then be a
-trap. Quantised |d2| are 0 or whole steps, so the clipped average rises only where
-more than 1 / clip (m1 / ``noise_clip_sigmas``, about 38 %) of them are not 0, and
-after a robot parked at a wall for a minute it sat at the float's smallest numbers
-and clipped every later sample to nothing: the readings stayed weighted by the
-output step's noise alone, on a noise of 1-4 cm too. The clip therefore never goes
-below ``noise_clip_sigmas`` times the scatter of d2 for the step's noise alone,
-sqrt(6 q) S: a one-step difference always counts whole (a test parks 80 s and checks
-that the noise is measured again within a second).
+A still, quantised target: readings that repeat one centimetre (a robot parked at a
+wall) give second differences of 0, which take the average down by 1 / ``noise_frames``
+a reading, to the float's smallest number after about 75 s. A clip at a multiple of
+the average's own value lets it climb back by at most about 6.5 % a sample, about as
+slowly as it fell: after 20 s parked at 0.50 m, the noise of a wall at 1.90 m (7-20
+mm) would be read at under 0.8 of the truth for 15-21 s, and after 80 s or more for
+68 s (1 cm; one run each), the readings weighted meanwhile by the output step's noise
+alone (2.9 mm). So the clip is never below ``noise_clip_sigmas`` times the scatter of
+d2 for the step's noise alone, sqrt(6 q) S, and a one-step difference always counts
+whole: the same walls' noise is at 0.8 of the truth within 0.18-0.22 s (a test parks
+80 s, then checks the noise from the second second on, and the light).
 """
 
 from __future__ import annotations
@@ -169,13 +171,14 @@ LIGHT_WAIT_SPANS = 2
 """After a reading whose noise is below the output step (the light not observable),
 the slow side waits until the light's fast average has taken this many spans of
 ``noise_frames`` observable readings of the new target before it samples it again.
-Now that the clip never falls below the step's own scatter (the module's last
-paragraph), the statistic of a close target near the observability bound is read as
-it is instead of as nothing, and a single span's wait let that through as light: 317
-targets missed on ``lunad eval`` seeds 0-8 and 10-29 against 307 with two spans and
-305 with three, where a target near the bound has its light null more often (at S =
-1 with 5.5, 6 and 7 mm of noise: 89, 74 and 33 % of frames with two spans, 77, 58 and
-22 % with one)."""
+With the clip's floor (the module's last paragraph) the statistic of a close target
+near the observability bound is what it measures, not nothing, and after one span it
+still holds enough of it to read as light. ``lunad eval``, seeds 0-8 and 10-29: 317
+targets missed with one span, 307 with two, 305 with three; seeds 30-39, run once
+after the choice: 120 against 121 for the filter before the floor. About ten targets
+on 700 runs is at the edge of what the seeds can tell. The cost is a light null more
+often near the bound: at S = 1 with 5.5, 6 and 7 mm of noise, on 77, 58 and 22 % of
+frames with one span, 89, 74 and 33 % with two and 96, 84 and 42 % with three."""
 SLOW_RISE_RATIO = 1.3
 """The slow average starts again from the noise floor when the floor (a lower envelope:
 clutter cannot lift it) rises this far above it: the light rose. About two of the

@@ -303,7 +303,7 @@ class RangeFilter:
         m1 = winsorised_abs_mean(c.noise_clip_sigmas)
         self._m1 = m1
         self._clip_a = c.noise_clip_sigmas / m1
-        # The clip never goes below noise_clip_sigmas of d2's scatter for the output
+        # The clip is never below noise_clip_sigmas times d2's scatter for the output
         # step's noise alone (noise.py, "A still, quantised target").
         self._clip_step = c.noise_clip_sigmas * sqrt(6.0 * self._q_m2)
         self._kA = 1.0 / (6.0 * m1 * m1)
@@ -494,7 +494,7 @@ class RangeFilter:
                         if y < self._cut_a * light:
                             self.noise_light = light + w * (y - light)
                         q_lim = self._clip_step * s
-                        if lim < q_lim:  # never below the output step's own scatter
+                        if lim < q_lim:  # a one-step difference counts whole
                             lim = q_lim if y > q_lim else y
                         y = lim
                     else:
@@ -520,7 +520,7 @@ class RangeFilter:
                 elif self.noise_fast == 0.0:  # the first pair: the configured prior
                     sd = d2_scale(self.c2, self._q_m2 * s2)
                     self.noise_fast = self._m1 * sd
-                    self.noise_light = self.noise_slow = self._mt * sd
+                    self.noise_light = self._mt * sd  # the slow one: its first sample
             self._z1 = z
             self._gap_prev = gap
             r = self.c2 / s2 + self._q_m2
