@@ -14,6 +14,7 @@ import os
 import resource
 import signal
 import subprocess
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -387,6 +388,40 @@ def test_a_stop_while_serve_starts_exits_0(
         pytest.fail(f"still running {RUN_TIMEOUT_S} s after {signal.Signals(sig).name}")
     assert code == 0, d.log
     assert "Traceback" not in d.log, d.log
+
+
+def test_a_stop_while_serve_exits_keeps_its_exit_code(tmp_path: Path) -> None:
+    """While Python shuts down it gives SIGTERM its default action back: a stop sent as
+    the daemon ended by itself (a replay's end) made it exit -15. Here ``lunad serve``
+    refuses its endpoint (78) and an object of the script's own is finalized slowly
+    after that, the moment a SIGTERM comes: the exit code is still 78."""
+    script = (
+        "import sys, time\n"
+        "from lunad.daemon.cli.main import main\n"
+        "class Slow:\n"
+        "    def __del__(self):\n"
+        "        print('finalizing', flush=True)\n"
+        "        time.sleep(0.5)\n"
+        "keep = Slow()\n"
+        "sys.exit(main(sys.argv[1:]))\n"
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", script, "serve", "--publish", "tcp://127.0.0.1:*"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=tmp_path,
+    )
+    try:
+        assert proc.stdout is not None
+        assert proc.stdout.readline() == "finalizing\n"
+        time.sleep(0.1)
+        proc.send_signal(signal.SIGTERM)
+        code = proc.wait(timeout=RUN_TIMEOUT_S)
+        assert code == EX_CONFIG, proc.stderr.read() if proc.stderr else ""
+    finally:
+        proc.kill()
+        proc.communicate()
 
 
 # --- 6. endpoints ---------------------------------------------------------------------

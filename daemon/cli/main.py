@@ -14,7 +14,7 @@ import logging
 import sys
 from collections.abc import Sequence
 
-from lunad.daemon.cli.signals import StartupSignals
+from lunad.daemon.cli.signals import StartupSignals, ignore_while_exiting
 
 SUBCOMMANDS = (
     "lunad.daemon.cli.serve",
@@ -99,4 +99,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
     except BrokenPipeError:
         return 0
+    finally:
+        if startup is not None:
+            ignore_while_exiting()
     return code
