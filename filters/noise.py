@@ -45,8 +45,7 @@ does not keep the prior: its lux is not published before ``LIGHT_MEASURED_SPANS`
 anyway. The prior is |d2| S at the first pair's S, the output step included; a target
 that starts close and then moves off carried it, and read a few klux in the dark
 (``lunad eval``, seeds 0-8 and 10-29: 307 targets missed against 316 with the prior
-kept). The
-fast one's prior is a guess too, so it starts again, counted as
+kept). The fast one's prior is a guess too, so it starts again, counted as
 ``NOISE_BOOT_SAMPLES`` readings, from the median of the first that many second
 differences after a start. The slow one is fed only while the noise is observable
 (below): a still, close target in between leaves it where the last observable target
