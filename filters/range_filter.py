@@ -42,7 +42,8 @@ evidence for each choice):
    starts the track again after that: one reading alone (a beam back from a surface
    too weak to read, whose first reading mixes two surfaces) is not published until
    the next one agrees with it. ``stale`` too after a start until the boot has
-   measured the noise (for at most ``stale_after_s`` from the first track): the
+   measured the noise and the first track's own sigma is under
+   ``sigma_unreliable_m`` (for at most ``stale_after_s`` from the first track): the
    sigma would be the prior's guess, and a run's first track published from its
    first reading came out 0.3-0.4 m off with a sigma of 5-9 cm where the noise was
    three times the prior's (runs with such bad outputs on ``lunad eval`` seeds 0-2,
@@ -186,6 +187,7 @@ class RangeFilter:
         "_gate2",
         "_hold",
         "_hold_frames",
+        "_holding",
         "_inv_k",
         "_jump",
         "_kA",
@@ -233,6 +235,7 @@ class RangeFilter:
         "_stale_ns",
         "_still_ns",
         "_thr2",
+        "_unrel2",
         "_v0var",
         "_z1",
         "_z2",
@@ -297,6 +300,7 @@ class RangeFilter:
         self._drift_thr2 = c.manoeuvre_sigmas * c.manoeuvre_sigmas * self._drift_noise
         self._hold_frames = c.manoeuvre_frames
         self._outlier_drop2 = 4.0 * c.sigma_unreliable_m * c.sigma_unreliable_m
+        self._unrel2 = c.sigma_unreliable_m * c.sigma_unreliable_m
         # Noise (noise.py).
         self._sigma0 = c.sigma0_m
         self._inv_k = 1.0 / c.k_m_per_lux
@@ -362,6 +366,7 @@ class RangeFilter:
         self._gap = self._gap_prev = 0
         self._boot: list[float] | None = [] if self._boot_ok else None
         self._boot_until_ns = _NEVER
+        self._holding = self._boot_ok  # no boot: nothing to hold
         self.zone = _UNRELIABLE
         self._last_t_ns: int | None = None
         self._last_accept_ns = 0
@@ -378,6 +383,7 @@ class RangeFilter:
         if amp <= 0:
             raise ValueError(f"assume_reading_sigma: amp must be above 0, got {amp!r}")
         self._boot = None
+        self._holding = False
         s = amp * self.inv_amp_ref
         c2 = sigma_m * sigma_m * s * s
         self.c2 = c2 if c2 > self._c2_floor else self._c2_floor
@@ -645,9 +651,13 @@ class RangeFilter:
                 reasons = _WEAK_OUTLIER
             elif outlier_e * outlier_e > self._outlier_drop2:  # a sigma that covers it
                 reasons = _OUTLIER  # would say "unreliable": the robot gets no figure
-        if self._boot is not None and not reasons and t < self._boot_until_ns:
-            # The noise not measured yet: no sigma to state (noise.py).
-            reasons = _WEAK_STALE if marginal else _STALE
+        if self._holding and not reasons:
+            # A start: no estimate while the noise is not measured (noise.py) or the first
+            # track's own sigma is beyond usable, for at most stale_after_s from its start.
+            if t >= self._boot_until_ns:
+                self._holding = False
+            elif self._boot is not None or self.p00 > self._unrel2:
+                reasons = _WEAK_STALE if marginal else _STALE
         if not reasons and self.active:
             x = self.x
             if x >= self._min_m and x <= self._max_m:

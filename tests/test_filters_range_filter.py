@@ -626,6 +626,31 @@ def test_the_first_readings_noise_is_measured_not_taken_from_the_prior() -> None
     assert inside / published >= 0.9
 
 
+def test_a_first_track_too_noisy_to_use_is_held_back_until_it_is_not() -> None:
+    """A grey target at 3 m under 60 klux, 25 cm of noise a reading, 200 starts: once
+    the boot has measured the noise (the 10th reading) the first track's sigma is
+    still above ``sigma_unreliable_m``, and published from there its estimates were
+    more than 0.3 m off 44 times in the first half second. Held until the track's
+    sigma (sqrt P00) is under it, for at most ``stale_after_s``: 20 times, the first
+    estimate at the 20th reading (median)."""
+    amp = 152
+    lux = 60_000.0
+    assert sigma_of(amp, lux) == pytest.approx(0.25, rel=0.01)
+    window = round(CFG.stale_after_s * 1e9 / FRAME_NS)
+    off = 0
+    firsts: list[int] = []
+    for seed in range(200):
+        flt = RangeFilter()
+        est = feed(flt, noisy(random.Random(seed), 3.0, amp, window, lux), amp)
+        usable = [(k, e) for k, e in enumerate(est) if e.range_m is not None]
+        firsts.append(usable[0][0])
+        for _, e in usable:
+            assert e.sigma_m is not None and e.range_m is not None
+            off += abs(e.range_m - 3.0) > 0.3
+    assert off <= 25
+    assert 15 <= sorted(firsts)[100] <= 30
+
+
 def test_after_a_close_target_the_light_waits_for_the_new_readings() -> None:
     """A wall at 4.13 m under 300 lux, a box at 1.21 m whose strong return hides the
     noise under the output step, then the wall again (``obstacles`` in the paper
