@@ -151,6 +151,31 @@ def test_an_edge_is_followed_from_its_first_clean_reading_never_publishing_a_mix
     assert Reason.OUTLIER not in second.reasons
 
 
+def test_two_mixed_readings_that_agree_do_not_restart_the_track_ok() -> None:
+    """At an edge two readings can mix the surfaces at about the same distance (2.87
+    and 2.92 m between 1 and 5 m, alternating in the paper world at seed 53) while the
+    amp moves with the mix (554, 400): they confirm a step like any two agreeing
+    outliers, and the restart's frame went out ``ok``. Their amps part by more than
+    ``EDGE_AMP_RATIO``: it is ``degraded`` (``outlier``) until a reading agrees. A
+    real step, whose readings keep their amp, is ``ok`` at once."""
+    for (z1, a1), (z2, a2), ok in (
+        ((2.87, 554), (2.92, 400), False),
+        ((2.87, 420), (2.92, 400), True),
+    ):
+        flt = RangeFilter()
+        feed(flt, noisy(random.Random(5), 1.0, 650, 250), 650)
+        first = flt.step(z1, a1, 250 * FRAME_NS)
+        assert first.status is not Status.OK
+        restart = flt.step(z2, a2, 251 * FRAME_NS)
+        assert restart.range_m == pytest.approx((z1 + z2) / 2, abs=0.01)
+        if ok:
+            assert restart.status is Status.OK, restart
+        else:
+            assert restart.status is Status.DEGRADED and Reason.OUTLIER in restart.reasons
+            after = flt.step(2.90, 400, 252 * FRAME_NS)
+            assert after.status is Status.OK, after
+
+
 def test_stale_after_no_accepted_reading() -> None:
     flt = RangeFilter(FilterConfig(stale_after_s=0.1))
     feed(flt, [2.0] * 10, 1800)
