@@ -316,8 +316,8 @@ class RangeFilter:
         self._drift_noise = (1.0 - rho) / (1.0 + rho)
         self._drift_thr2 = c.manoeuvre_sigmas * c.manoeuvre_sigmas * self._drift_noise
         self._hold_frames = c.manoeuvre_frames
-        self._outlier_drop2 = 4.0 * c.sigma_unreliable_m * c.sigma_unreliable_m
         self._unrel2 = c.sigma_unreliable_m * c.sigma_unreliable_m
+        self._outlier_drop2 = 4.0 * self._unrel2
         # Noise (noise.py).
         self._sigma0 = c.sigma0_m
         self._inv_k = 1.0 / c.k_m_per_lux
@@ -326,7 +326,7 @@ class RangeFilter:
         self._clip_a = c.noise_clip_sigmas / m1
         # The clip is never below noise_clip_sigmas times d2's scatter for the output
         # step's noise alone (noise.py, "A still, quantised target").
-        self._clip_step = c.noise_clip_sigmas * sqrt(6.0 * self._q_m2)
+        self._clip_step = c.noise_clip_sigmas * d2_scale(0.0, self._q_m2)
         self._kA = 1.0 / (6.0 * m1 * m1)
         mt = truncated_abs_mean(LIGHT_CUT_SIGMAS)
         self._mt = mt
