@@ -390,11 +390,22 @@ def test_a_stop_while_serve_starts_exits_0(
     assert "Traceback" not in d.log, d.log
 
 
-def test_a_stop_while_serve_exits_keeps_its_exit_code(tmp_path: Path) -> None:
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["serve", "--publish", "tcp://127.0.0.1:*"],
+        ["record", "--device", "/dev/null", "--out", "no-such-folder/out.lunarec"],
+    ],
+    ids=["serve", "record"],
+)
+def test_a_stop_while_serve_or_record_exits_keeps_its_exit_code(
+    tmp_path: Path, command: list[str]
+) -> None:
     """While Python shuts down it gives SIGTERM its default action back: a stop sent as
     the daemon ended by itself (a replay's end) made it exit -15. Here ``lunad serve``
-    refuses its endpoint (78) and an object of the script's own is finalized slowly
-    after that, the moment a SIGTERM comes: the exit code is still 78."""
+    refuses its endpoint and ``lunad record`` its ``--out`` (78, after each installed
+    its own stop handlers), and an object of the script's own is finalized slowly after
+    that, the moment a SIGTERM comes: the exit code is still 78."""
     script = (
         "import sys, time\n"
         "from lunad.daemon.cli.main import main\n"
@@ -406,7 +417,7 @@ def test_a_stop_while_serve_exits_keeps_its_exit_code(tmp_path: Path) -> None:
         "sys.exit(main(sys.argv[1:]))\n"
     )
     proc = subprocess.Popen(
-        [sys.executable, "-c", script, "serve", "--publish", "tcp://127.0.0.1:*"],
+        [sys.executable, "-c", script, *command],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

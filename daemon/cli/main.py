@@ -100,6 +100,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BrokenPipeError:
         return 0
     finally:
-        if startup is not None:
+        if words[:1] in (["serve"], ["record"]):  # they handle stops: none at the exit
             ignore_while_exiting()
     return code

@@ -100,11 +100,11 @@ class StartupSignals:
 
 
 def ignore_while_exiting() -> None:
-    """Ignore SIGHUP, SIGTERM and SIGINT for the rest of the process: ``lunad serve``,
-    once it has stopped serving. While Python shuts down it gives every signal with a
-    Python handler its default action back, and SIGTERM's ends the process by the
-    signal: a stop sent as the daemon ended by itself (a replay's end) made it exit -15
-    instead of its own code. An ignored signal stays ignored, and nothing is left to
-    stop."""
+    """Ignore SIGHUP, SIGTERM and SIGINT for the rest of the process: ``lunad serve``
+    and ``lunad record``, once they have stopped. While Python shuts down it gives every
+    signal with a Python handler its default action back, and SIGTERM's ends the process
+    by the signal: a stop sent as the daemon ended by itself (a replay's end) made it
+    exit -15 instead of its own code. An ignored signal stays ignored, and nothing is
+    left to stop."""
     for signum in StartupSignals.SIGNALS:
         signal.signal(signum, signal.SIG_IGN)
