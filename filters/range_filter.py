@@ -27,7 +27,11 @@ evidence for each choice):
    mean m of the innovations over N readings fires when
    m^2 > T^2 (1 - rho) / (1 + rho) times their mean square (rho = 1 - 1/N), once
    with N = ``manoeuvre_frames`` (a sudden manoeuvre) and once with five times as
-   many (a small lag that a noisy reading hides).
+   many (a small lag that a noisy reading hides). When it fires after a quiet stretch,
+   P00 gains the squared bias it measured (m^2 less its scatter's share): a raised
+   process noise alone adds q dt a frame to the speed's variance, which reaches P00
+   over several frames, and the first frames of the hold went on trusting a track
+   that lagged by what the test had just seen.
    An innovation beyond ``gate_sigmas`` is an ``outlier``; ``step_confirm`` outliers
    that agree with each other restart the track at them (a step), published
    ``degraded`` when their amps part (``EDGE_AMP_RATIO``: an edge's mixed readings).
@@ -637,6 +641,10 @@ class RangeFilter:
                     mean2 = mean * mean
                     drift2 = drift * drift
                     if mean2 > self._thr2 * power or drift2 > self._drift_thr2 * power:
+                        if not self._hold:  # a manoeuvre begins: P takes in the lag
+                            bias2 = mean2 - self._man_noise * power  # the test measured
+                            if bias2 > 0.0:
+                                self.p00 += bias2
                         self._hold = self._hold_frames
                         self.qa = self._qa_hi
                         self._still_ns = _NEVER

@@ -785,3 +785,32 @@ def test_after_a_long_still_stretch_the_noise_is_measured_again() -> None:
                 inside += abs(e.range_m - 1.903) <= 2.0 * e.sigma_m
     assert published > 0.9 * 5 * 500
     assert inside / published >= 0.85
+
+
+def _start_of_motion_rms(seed: int) -> tuple[float, int]:
+    """Sum of squared errors (m^2) and frames published over the first second of a drive
+    at a wall: 2 s still at 6 m under 17 cm of noise (a grey wall in sunlight), then
+    3 m/s^2 up to 1.5 m/s (wall_drive's start)."""
+    rng = random.Random(seed)
+    f = RangeFilter()
+    x, v, sq, n = 6.0, 0.0, 0.0, 0
+    for k in range(750):
+        if k >= 500:
+            v = max(-1.5, v - 3.0 * 0.004)
+            x += v * 0.004
+        est = f.step(round((x + rng.gauss(0.0, 0.17)) * 100) / 100, 300, k * FRAME_NS)
+        if k >= 500 and est.range_m is not None:
+            sq += (est.range_m - x) ** 2
+            n += 1
+    return sq, n
+
+
+def test_a_manoeuvre_test_that_fires_lets_the_track_catch_up_at_once() -> None:
+    """When the manoeuvre test fires, P00 takes in the lag it measured, so the first
+    frames of the hold trust the readings instead of the lagging track. RMS error over
+    the first second of the motion, 20 seeds: 5.4 cm, against 6.6 cm when the raised
+    process noise alone let P grow."""
+    runs = [_start_of_motion_rms(seed) for seed in range(20)]
+    frames = sum(n for _, n in runs)
+    assert frames > 20 * 240
+    assert math.sqrt(sum(sq for sq, _ in runs) / frames) < 0.06
