@@ -28,10 +28,10 @@ evidence for each choice):
    m^2 > T^2 (1 - rho) / (1 + rho) times their mean square (rho = 1 - 1/N), once
    with N = ``manoeuvre_frames`` (a sudden manoeuvre) and once with five times as
    many (a small lag that a noisy reading hides). When it fires after a quiet stretch,
-   P00 gains the squared bias it measured (m^2 less its scatter's share): a raised
-   process noise alone adds q dt a frame to the speed's variance, which reaches P00
-   over several frames, and the first frames of the hold went on trusting a track
-   that lagged by what the test had just seen.
+   P00 gains the fast mean's squared bias (m^2 less its scatter's share):
+   ``manoeuvre_accel_psd`` alone adds qa dt a frame to the speed's variance, which
+   reaches P00 only over several frames, so the hold's first frames would still
+   trust the lagging track.
    An innovation beyond ``gate_sigmas`` is an ``outlier``; ``step_confirm`` outliers
    that agree with each other restart the track at them (a step), published
    ``degraded`` when their amps part (``EDGE_AMP_RATIO``: an edge's mixed readings).
@@ -640,11 +640,14 @@ class RangeFilter:
                     self.man_power = power
                     mean2 = mean * mean
                     drift2 = drift * drift
+                    excess = mean2 - self._man_noise * power  # m^2 less its scatter's share
                     if mean2 > self._thr2 * power or drift2 > self._drift_thr2 * power:
-                        if not self._hold:  # a manoeuvre begins: P takes in the lag
-                            bias2 = mean2 - self._man_noise * power  # the test measured
-                            if bias2 > 0.0:
-                                self.p00 += bias2
+                        if not self._hold and excess > 0.0:
+                            # A manoeuvre begins: the raised qa reaches P00 only over
+                            # several frames, so P takes in the lag the fast mean shows
+                            # now and the gain rises from the next reading on. This
+                            # frame's sigma counts it twice (here and in ``extra``).
+                            self.p00 += excess
                         self._hold = self._hold_frames
                         self.qa = self._qa_hi
                         self._still_ns = _NEVER
@@ -656,7 +659,6 @@ class RangeFilter:
                             self._settle(t, r, dt)
                     # What P cannot see: the part of the innovations' running means
                     # that their own scatter does not explain is a bias of the track.
-                    excess = mean2 - self._man_noise * power
                     extra = excess if excess > 0.0 else 0.0
                     excess = drift2 - self._drift_noise * power
                     self.extra = extra + excess if excess > 0.0 else extra

@@ -391,21 +391,22 @@ def test_a_stop_while_serve_starts_exits_0(
 
 
 @pytest.mark.parametrize(
-    "command",
+    ("command", "refused"),
     [
-        ["serve", "--publish", "tcp://127.0.0.1:*"],
-        ["record", "--device", "/dev/null", "--out", "no-such-folder/out.lunarec"],
+        (["serve", "--publish", "tcp://127.0.0.1:*"], "(--publish)"),
+        (["record", "--device", "/dev/null", "--out", "no-such-folder/out.lunarec"], "--out:"),
     ],
     ids=["serve", "record"],
 )
 def test_a_stop_while_serve_or_record_exits_keeps_its_exit_code(
-    tmp_path: Path, command: list[str]
+    tmp_path: Path, command: list[str], refused: str
 ) -> None:
     """While Python shuts down it gives SIGTERM its default action back: a stop sent as
     the daemon ended by itself (a replay's end) made it exit -15. Here ``lunad serve``
     refuses its endpoint and ``lunad record`` its ``--out`` (78, after each installed
-    its own stop handlers), and an object of the script's own is finalized slowly after
-    that, the moment a SIGTERM comes: the exit code is still 78."""
+    its own stop handlers: record's come before it opens ``--out``), and an object of
+    the script's own is finalized slowly after that, the moment a SIGTERM comes: the
+    exit code is still 78."""
     script = (
         "import sys, time\n"
         "from lunad.daemon.cli.main import main\n"
@@ -429,7 +430,9 @@ def test_a_stop_while_serve_or_record_exits_keeps_its_exit_code(
         time.sleep(0.1)
         proc.send_signal(signal.SIGTERM)
         code = proc.wait(timeout=RUN_TIMEOUT_S)
-        assert code == EX_CONFIG, proc.stderr.read() if proc.stderr else ""
+        err = proc.stderr.read() if proc.stderr else ""
+        assert code == EX_CONFIG, err
+        assert refused in err, err
     finally:
         proc.kill()
         proc.communicate()

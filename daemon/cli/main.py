@@ -100,6 +100,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BrokenPipeError:
         return 0
     finally:
-        if words[:1] in (["serve"], ["record"]):  # they handle stops: none at the exit
+        if words[:1] in (["serve"], ["record"]):
+            # Their stop handlers get the default action back while Python shuts down:
+            # a stop then would end the process by the signal instead of their code.
             ignore_while_exiting()
     return code
