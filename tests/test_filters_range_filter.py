@@ -793,11 +793,12 @@ def _start_of_motion_rms(seed: int) -> tuple[float, int]:
     3 m/s^2 up to 1.5 m/s (wall_drive's start)."""
     rng = random.Random(seed)
     f = RangeFilter()
+    dt = FRAME_NS / 1e9
     x, v, sq, n = 6.0, 0.0, 0.0, 0
     for k in range(750):
         if k >= 500:
-            v = max(-1.5, v - 3.0 * 0.004)
-            x += v * 0.004
+            v = max(-1.5, v - 3.0 * dt)
+            x += v * dt
         est = f.step(round((x + rng.gauss(0.0, 0.17)) * 100) / 100, 300, k * FRAME_NS)
         if k >= 500 and est.range_m is not None:
             sq += (est.range_m - x) ** 2

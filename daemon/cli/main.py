@@ -85,7 +85,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``lunad`` console script."""
     words = sys.argv[1:] if argv is None else list(argv)
     # The sub-command's name is the first word (lunad's own options all exit at once).
-    startup = StartupSignals() if words[:1] == ["serve"] else None
+    command = words[0] if words else None
+    startup = StartupSignals() if command == "serve" else None
     parser = build_parser()
     args, extra = parser.parse_known_args(words)
     if extra:
@@ -100,7 +101,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BrokenPipeError:
         return 0
     finally:
-        if words[:1] in (["serve"], ["record"]):
+        if command in ("serve", "record"):
             # Their stop handlers get the default action back while Python shuts down:
             # a stop then would end the process by the signal instead of their code.
             ignore_while_exiting()
