@@ -114,6 +114,24 @@ simulated amp is steadier than a real one: in the real roadside log a quarter of
 consecutive readings within 3 cm of each other differ in amp by more than 1.3x, so on
 a sensor the first frame after a step will often be ``degraded`` too."""
 
+COVER_SIGMAS = 3.0
+"""An accepted reading further than this many predicted sigmas (sqrt(P00 + r)) from the
+track is one the track does not explain yet: the frame's published variance takes
+``COVER_SHARE`` of its squared innovation, so that the sigma covers the disagreement
+with the sensor. A normal reading lies that far out 0.27 % of the time; the first
+readings of a reversal, a corner or a stop before the manoeuvre test can see them
+nearly always. room_sweep in the shot world, seed 1, at a corner 0.1 s in (3.3 m/s
+reversing): three frames 2.8-6.1 cm off the truth with a sigma of 0.4-1.2 cm, 7-15
+sigmas. ``lunad eval``, seeds 0-8, 10-29 and 80-89: runs with more than 0.5 % beyond 5
+sigma 5, 2 and 3 without the cover, 0, 0 and 1 with it (2σ coverage above 99 % in 1, 2
+and 1 more runs); 2.5 sigmas, 3.5 sigmas and a share of 0.1 or 0.5 did no better
+(docs/filter.md section 5)."""
+COVER_SHARE = 0.25
+"""The share of a squared innovation that the published variance takes where it covers
+a reading the track does not explain (beyond ``COVER_SIGMAS``, or an ``outlier``): a
+quarter puts the reading at two published sigmas from the estimate."""
+_COVER2 = COVER_SIGMAS * COVER_SIGMAS
+
 DRIFT_SPAN = 5
 """The slow innovation mean (``drift``) spans this many times ``manoeuvre_frames``
 readings: it sees a bias too small for the fast test (a third of a noisy reading's
@@ -213,6 +231,7 @@ class RangeFilter:
         "_kL",
         "_last_accept_ns",
         "_last_t_ns",
+        "_latched",
         "_learn_below",
         "_lux_enter",
         "_lux_exit",
@@ -358,7 +377,7 @@ class RangeFilter:
     def reset(self) -> None:
         """Forget all state (after a reconnect)."""
         c = self.config
-        self.weak = self.out_of_range = self.ambient = False
+        self.weak = self.out_of_range = self.ambient = self._latched = False
         self.active = False
         self.x = self.v = self.p00 = self.p01 = self.p11 = 0.0
         self.qa = self._qa_lo
@@ -446,8 +465,7 @@ class RangeFilter:
         marginal = False  # a reading in the weak gate's hysteresis band: degraded
         reasons: tuple[Reason, ...]
         if (  # the common frame: no latch set, strong enough and in range
-            not self.weak
-            and not self.out_of_range
+            not self._latched
             and raw_m is not None
             and amp >= self._amp_strong
             and amp <= AMP_AMBIENT
@@ -488,6 +506,7 @@ class RangeFilter:
                 else:  # weak with a reading: the amp is in the band above the threshold
                     marginal = weak
                     reasons = _NONE
+            self._latched = weak or self.out_of_range
 
         outlier_e = 0.0
         active = self.active
@@ -661,7 +680,11 @@ class RangeFilter:
                     # that their own scatter does not explain is a bias of the track.
                     extra = excess if excess > 0.0 else 0.0
                     excess = drift2 - self._drift_noise * power
-                    self.extra = extra + excess if excess > 0.0 else extra
+                    if excess > 0.0:
+                        extra += excess
+                    if e2 > _COVER2 * sp:  # a reading the track does not explain yet
+                        extra += COVER_SHARE * e2
+                    self.extra = extra
             else:  # no track yet, or none accepted for stale_after_s: start one here
                 self._start(z, r)
                 self._last_accept_ns = t
@@ -699,13 +722,17 @@ class RangeFilter:
                 var = self.p00
                 if t >= self._still_ns:  # settled after a manoeuvre
                     var *= STILL_VAR_RATIO
-                if outlier_e:
-                    var += 0.25 * outlier_e * outlier_e
+                if outlier_e:  # the zone describes conditions: the track's own sigma
+                    zsig = sqrt(self.p00)
+                    if zsig < self._floor:
+                        zsig = self._floor
+                    sigma = sqrt(var + COVER_SHARE * outlier_e * outlier_e)
+                    if sigma < self._floor:
+                        sigma = self._floor
                 else:
-                    var += self.extra
-                sigma = sqrt(var)
-                if sigma < self._floor:
-                    sigma = self._floor
+                    zsig = sigma = sqrt(var + self.extra)
+                    if sigma < self._floor:
+                        zsig = sigma = self._floor
                 lux_out = self.lux
                 if lux_out is None:
                     ambient = self.ambient = False
@@ -716,12 +743,6 @@ class RangeFilter:
                         ambient = self.ambient = lux_out > self._lux_exit
                     else:
                         ambient = self.ambient = lux_out > self._lux_enter
-                if outlier_e:  # the zone describes conditions: the track's own sigma
-                    zsig = sqrt(self.p00)
-                    if zsig < self._floor:
-                        zsig = self._floor
-                else:
-                    zsig = sigma
                 # The zone, with hysteresis (zone.py: ZoneClassifier.classify).
                 zone = self.zone
                 zl = self._zone_limits

@@ -16,7 +16,7 @@ from lunad.filters import (
     Zone,
 )
 from lunad.filters.noise import LIGHT_MEASURED_SPANS, MIN_STATS_BIAS, NOISE_BOOT_SAMPLES
-from lunad.filters.range_filter import STILL_SETTLE_TAUS, STILL_VAR_RATIO
+from lunad.filters.range_filter import COVER_SIGMAS, STILL_SETTLE_TAUS, STILL_VAR_RATIO
 
 CFG = FilterConfig()
 FRAME_NS = 4_000_000  # 250 Hz
@@ -68,6 +68,24 @@ def test_small_outlier_is_degraded_showing_the_prediction_with_a_covering_sigma(
     assert est.range_m == pytest.approx(2.0, abs=0.01)
     assert est.sigma_m is not None and 2.0 * est.sigma_m >= abs(2.12 - est.range_m)
     assert flt.step(2.0, 1800, 201 * FRAME_NS).status is Status.OK
+
+
+def test_a_reading_the_track_does_not_explain_gets_a_sigma_that_covers_it() -> None:
+    """An accepted reading beyond COVER_SIGMAS predicted sigmas (here 3.2) is published
+    ``ok`` with a sigma that puts it within 2 sigmas of the estimate; without the cover
+    the settled track's own sigma would put it 8 sigmas away. The next, ordinary reading
+    gets the track's sigma back."""
+    flt = RangeFilter()
+    feed(flt, noisy(random.Random(1), 2.0, 1800, 200), 1800)
+    s = 1800 / CFG.amp_ref
+    predicted = math.sqrt(flt.p00 + flt.c2 / (s * s) + CFG.resolution_m**2 / 12.0)
+    z = 2.02
+    assert COVER_SIGMAS < (z - flt.x) / predicted < CFG.gate_sigmas
+    est = flt.step(z, 1800, 200 * FRAME_NS)
+    assert est.status is Status.OK and est.range_m is not None and est.sigma_m is not None
+    assert abs(z - est.range_m) <= 2.0 * est.sigma_m
+    after = flt.step(2.0, 1800, 201 * FRAME_NS)
+    assert after.sigma_m is not None and after.sigma_m < 0.5 * est.sigma_m
 
 
 def test_spike_no_sigma_can_cover_is_a_dropout() -> None:
