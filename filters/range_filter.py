@@ -42,7 +42,9 @@ evidence for each choice):
    the filter has settled after one (``STILL_VAR_RATIO``): P counts an acceleration
    that a target that stopped, or moves at a constant speed, does not have. On an
    outlier frame the sigma covers the disagreement with the reading, unless that
-   sigma would pass ``sigma_unreliable_m``: then the frame is a ``dropout``.
+   sigma would pass ``sigma_unreliable_m``: then the frame is a ``dropout``; so it
+   does on an accepted frame whose reading the track does not explain yet
+   (``COVER_SIGMAS``), such as the first readings of a reversal.
    ``stale`` when nothing was accepted for ``stale_after_s``, and on the reading that
    starts the track again after that: one reading alone (a beam back from a surface
    too weak to read, whose first reading mixes two surfaces) is not published until

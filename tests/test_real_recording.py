@@ -116,10 +116,11 @@ def test_a_real_roadside_log_replays_whole_and_honestly(start_daemon: Any, tmp_p
     misses = [_normalised_miss(m, cfg) for m in usable]
     beyond5 = sum(u > 5.0 for u in misses) / len(misses)
     beyond3 = sum(u > 3.0 for u in misses) / len(misses)
-    # measured: 0.51 % beyond 5 and 3.3 % beyond 3 (a Gaussian gives 0.00006 % and
-    # 0.27 %: the roadside's clutter has heavier tails than noise)
-    assert beyond5 < 0.01, f"{beyond5:.2%} of estimates over 5 stated sigmas off their reading"
-    assert beyond3 < 0.05, f"{beyond3:.2%} of estimates over 3 stated sigmas off their reading"
+    # measured: 0.20 % beyond 5 and 1.5 % beyond 3 (a Gaussian gives 0.00006 % and
+    # 0.27 %: the roadside's clutter has heavier tails than noise); 0.51 % and 3.3 %
+    # without the cover for readings the track does not explain (docs/filter.md)
+    assert beyond5 < 0.005, f"{beyond5:.2%} of estimates over 5 stated sigmas off their reading"
+    assert beyond3 < 0.03, f"{beyond3:.2%} of estimates over 3 stated sigmas off their reading"
 
     lux = [m.lux_est for m in msgs if m.lux_est is not None]
     assert len(lux) > 0.5 * n
