@@ -121,13 +121,13 @@ COVER_SIGMAS = 3.0
 track is one the track does not explain yet: the frame's published variance takes
 ``COVER_SHARE`` of its squared innovation, so that the sigma covers the disagreement
 with the sensor. A normal reading lies that far out 0.27 % of the time; the first
-readings of a reversal, a corner or a stop before the manoeuvre test can see them
-nearly always. room_sweep in the shot world, seed 1, at a corner 0.1 s in (3.3 m/s
-reversing): three frames 2.8-6.1 cm off the truth with a sigma of 0.4-1.2 cm, 7-15
-sigmas. ``lunad eval``, seeds 0-8, 10-29 and 80-89: runs with more than 0.5 % beyond 5
-sigma 5, 2 and 3 without the cover, 0, 0 and 1 with it (2σ coverage above 99 % in 1, 2
-and 1 more runs); 2.5 sigmas, 3.5 sigmas and a share of 0.1 or 0.5 did no better
-(docs/filter.md section 5)."""
+readings of a reversal, a corner or a stop nearly always do, before the manoeuvre
+test's running means can see them. room_sweep in the shot world, seed 1, at a corner
+0.1 s in (3.3 m/s reversing): three frames 2.8-6.1 cm off the truth with a sigma of
+0.4-1.2 cm, 7-15 sigmas. ``lunad eval``, seeds 0-8, 10-29 and 80-89: runs with more
+than 0.5 % beyond 5 sigma 5, 2 and 3 without the cover, 0, 0 and 1 with it (2σ coverage
+outside 90-99 % in 1, 2 and 1 more runs); 2.5 sigmas, 3.5 sigmas and a share of 0.1 or
+0.5 did no better (docs/filter.md section 5)."""
 COVER_SHARE = 0.25
 """The share of a squared innovation that the published variance takes where it covers
 a reading the track does not explain (beyond ``COVER_SIGMAS``, or an ``outlier``): a
@@ -508,7 +508,7 @@ class RangeFilter:
                 else:  # weak with a reading: the amp is in the band above the threshold
                     marginal = weak
                     reasons = _NONE
-            self._latched = weak or self.out_of_range
+            self._latched = weak or self.out_of_range  # the common frame tests one flag
 
         outlier_e = 0.0
         active = self.active
