@@ -169,6 +169,28 @@ def test_an_edge_is_followed_from_its_first_clean_reading_never_publishing_a_mix
     assert Reason.OUTLIER not in second.reasons
 
 
+def test_an_edge_whose_mixed_readings_jump_about_is_followed_from_its_first_clean_one() -> None:
+    """A white wall at 5 m gives way to a dark object at 1 m through three mixed readings
+    that neither agree nor move steadily away from the track (2.90, 1.75, 2.87 m, as
+    alternating in the paper world drew them at seed 14): the fourth outlier on the
+    same side, the first clean reading, restarts the track there, ``degraded`` until
+    the next reading agrees; no mixed reading is published ``ok``."""
+    flt = RangeFilter()
+    feed(flt, noisy(random.Random(6), 5.0, 290, 250), 290)
+    mixed = [
+        flt.step(z, amp, (250 + k) * FRAME_NS)
+        for k, (z, amp) in enumerate([(2.90, 411), (1.75, 508), (2.87, 660)])
+    ]
+    assert all(e.status is not Status.OK for e in mixed)
+    assert all(e.range_m is None or abs(e.range_m - 5.0) < 0.1 for e in mixed)
+    first = flt.step(0.99, 697, 253 * FRAME_NS)
+    assert first.status is Status.DEGRADED and Reason.OUTLIER in first.reasons
+    assert first.range_m == pytest.approx(0.99)
+    second = flt.step(1.00, 607, 254 * FRAME_NS)
+    assert second.status is Status.OK and second.range_m is not None
+    assert abs(second.range_m - 1.0) < 0.02
+
+
 def test_two_mixed_readings_that_agree_do_not_restart_the_track_ok() -> None:
     """At an edge two readings can mix the surfaces at about the same distance (2.87
     and 2.92 m between 1 and 5 m, alternating in the paper world at seed 53) while the
