@@ -170,20 +170,22 @@ it. When the manoeuvre test fires, or outliers or a stale stretch restart the tr
 after a quiet stretch (the published variance settled, ``STILL_SETTLE_TAUS``), the
 track as it was goes on beside the new one at ``accel_psd`` (a target that holds its
 course), fed the same accepted readings, and each reading adds to the log-likelihood
-ratio of their predictions; after this many the still track is taken back when it is
-at least as likely. A real manoeuvre or step leaves it behind within a few readings;
-a false alarm, a test fired by the noise of a brighter sky, leaves the raised process
-noise chasing that noise (0.5-4 m/s on a still target under 15-23 cm of noise,
-cloud_flicker), and the still track explains the readings better. ``lunad eval``,
-seeds 0-8 and 10-29 (the choice): 246 targets missed against 253 (RMSE against the
-oracle 67 against 76, 2σ coverage 50 against 48: a better track under heavy noise
-shows a published sigma that was already too wide, docs/filter.md section 5); seeds
-20-49 283 against 298; seeds 120-139, run once after the choice, 194 against 199 (RMSE
-40 against 48, 2σ coverage 45 against 42). After any manoeuvre, not only a quiet
-stretch, and over 50 readings: 248 and 289, at 26 more bytecodes a frame (over 75
-readings 249); judged at the end of the hold (10 readings), 165 against 166 on seeds
-0-8 and 10-19; each reading's term capped at 2-4 sigmas, 249-251; the larger of the
-two covariances taken with the still track's state, 255 (RMSE 77)."""
+ratio of their predictions; after this many the still track is taken back, settled,
+when it is at least as likely. A real manoeuvre or step leaves it behind within a few
+readings; a false alarm, a test fired by noise on a still target, leaves the raised
+process noise chasing that noise (0.5-4 m/s under 15-23 cm of noise, cloud_flicker),
+and the still track explains the readings better. ``lunad eval``, seeds 0-8 and 10-29,
+20-49 and 100-119 (the choice): 245, 279 and 206 targets missed against 253, 298 and
+213 (RMSE against the oracle 66 and 72 against 76 and 88 on the first two); seeds
+120-139, run after the choice, 194 against 199 (RMSE 40 against 48, 2σ coverage 45
+against 42: a better track under heavy noise shows a published sigma that was already
+too wide, docs/filter.md section 5). Measured against the same change taking the
+still track back unsettled (246 and 283 on the first two): judged after any manoeuvre,
+not only a quiet stretch, and over 50 readings, 248 and 289, at 605.5 bytecodes a
+frame against 585.3 (over 75 readings 249); judged at the end of the hold (10
+readings), 165 against 166 on seeds 0-8 and 10-19; each reading's term capped at 2-4
+sigmas, 249-251; the larger of the two covariances taken with the still track's state,
+255 (RMSE 77)."""
 
 STILL_SETTLE_TAUS = 3.0
 """After a manoeuvre hold (or a track's start) that error falls from P00 to
@@ -325,7 +327,7 @@ class RangeFilter:
         "_sh_p00",
         "_sh_p01",
         "_sh_p11",
-        "_sh_t",
+        "_sh_t_ns",
         "_sh_v",
         "_sh_x",
         "_sigma0",
@@ -455,7 +457,7 @@ class RangeFilter:
         self._sh_on = False
         self._sh_x = self._sh_v = self._sh_p00 = self._sh_p01 = self._sh_p11 = 0.0
         self._sh_llr = 0.0
-        self._sh_t = self._sh_left = 0
+        self._sh_t_ns = self._sh_left = 0
         self._run_n = self._run_away = self._run_side = 0
         self._run_sum = self._run_rsum = self._run_last = self._run_r = 0.0
         self._run_sign = self._run_mixed = False
@@ -689,8 +691,9 @@ class RangeFilter:
                     self._run_r = r
                     self._run_gap = 0
                     if n >= self._confirm:
-                        if t >= self._still_ns and not self._sh_on:  # judge the track
-                            self._shadow(x, self.v, p00, p01, p11, t)  # as it was too
+                        # After a quiet stretch the track as it was is judged beside it.
+                        if t >= self._still_ns and not self._sh_on:
+                            self._shadow(x, self.v, p00, p01, p11, t)
                         self._start(self._run_sum / n, self._run_rsum / (n * n))
                         self._last_accept_ns = t
                         if self._run_mixed:
@@ -712,7 +715,8 @@ class RangeFilter:
                     if self._run_n:
                         self._run_n = 0
                     if self._sh_on and self._shadow_step(z, r, e2, sp, t):
-                        # The still track explains the readings better: it is the track.
+                        # The still track explains the readings as well: it is the track,
+                        # settled, and the innovation means were the other track's.
                         x = self._sh_x
                         self.v = self._sh_v
                         p00 = self._sh_p00
@@ -721,7 +725,10 @@ class RangeFilter:
                         e = z - x
                         sp = p00 + r
                         e2 = e * e
-                        self.man_mean = self.drift = 0.0  # the other track's innovations
+                        self.man_mean = self.drift = 0.0
+                        self._hold = 0
+                        self.qa = self._qa_lo
+                        self._still_ns = t
                     k0 = p00 / sp
                     k1 = p01 / sp
                     self.x = x + k0 * e
@@ -777,11 +784,12 @@ class RangeFilter:
                         extra += COVER_SHARE * e2
                     self.extra = extra
             else:  # no track yet, or none accepted for stale_after_s: start one here
-                if active and t >= self._still_ns:  # judge the still track as it was too,
-                    t_was = t - round(dt * 1e9)  # predicted to the frame before this one
-                    self._shadow(self.x, self.v, self.p00, self.p01, self.p11, t_was)
-                else:
+                if not active or t < self._still_ns:
                     self._sh_on = False
+                elif not self._sh_on:  # after a quiet stretch: the track as it was, judged
+                    # too, from the frame before this one (where it was predicted to)
+                    was = t if last is None else last
+                    self._shadow(self.x, self.v, self.p00, self.p01, self.p11, was)
                 self._start(z, r)
                 self._last_accept_ns = t
                 if active:  # after a stale stretch: held back until a reading agrees
@@ -989,7 +997,7 @@ class RangeFilter:
         self._sh_p00 = p00
         self._sh_p01 = p01
         self._sh_p11 = p11
-        self._sh_t = t
+        self._sh_t_ns = t
         self._sh_llr = 0.0
         self._sh_left = SHADOW_FRAMES
 
@@ -1000,8 +1008,8 @@ class RangeFilter:
         innovation and its predicted variance, m^2). On the last reading judged, return
         True when the still track is at least as likely, its state then the prediction
         before this reading, for the track to take and update."""
-        dt = (t - self._sh_t) * 1e-9
-        self._sh_t = t
+        dt = (t - self._sh_t_ns) * 1e-9
+        self._sh_t_ns = t
         if dt > 0.0:
             x, p00, p01, p11 = _cv_predicted(
                 self._sh_x, self._sh_v, self._sh_p00, self._sh_p01, self._sh_p11, self._qa_lo, dt
