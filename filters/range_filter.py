@@ -691,16 +691,13 @@ class RangeFilter:
                     self._run_r = r
                     self._run_gap = 0
                     if n >= self._confirm:
-                        # After a quiet stretch the track as it was is judged beside it.
-                        if t >= self._still_ns and not self._sh_on:
-                            self._shadow(x, self.v, p00, p01, p11, t)
+                        self._shadow(x, self.v, p00, p01, p11, t)  # the track as it was
                         self._start(self._run_sum / n, self._run_rsum / (n * n))
                         self._last_accept_ns = t
                         if self._run_mixed:
                             outlier_e = _UNCONFIRMED
                     elif away >= EDGE_RUN or side >= SIDE_RUN:  # an edge: start at the latest
-                        if t >= self._still_ns and not self._sh_on:
-                            self._shadow(x, self.v, p00, p01, p11, t)
+                        self._shadow(x, self.v, p00, p01, p11, t)
                         self._start(z, r)
                         self._last_accept_ns = t
                         outlier_e = _UNCONFIRMED
@@ -756,9 +753,8 @@ class RangeFilter:
                     drift2 = drift * drift
                     excess = mean2 - self._man_noise * power  # m^2 less its scatter's share
                     if mean2 > self._thr2 * power or drift2 > self._drift_thr2 * power:
-                        if t >= self._still_ns and not self._sh_on:  # after a quiet stretch:
-                            # the still track is judged beside the hold (SHADOW_FRAMES)
-                            self._shadow(self.x, self.v, self.p00, self.p01, self.p11, t)
+                        # the still track is judged beside the hold (SHADOW_FRAMES)
+                        self._shadow(self.x, self.v, self.p00, self.p01, self.p11, t)
                         if not self._hold and excess > 0.0:
                             # A manoeuvre begins: the raised qa reaches P00 only over
                             # several frames, so P takes in the lag the fast mean shows
@@ -784,12 +780,10 @@ class RangeFilter:
                         extra += COVER_SHARE * e2
                     self.extra = extra
             else:  # no track yet, or none accepted for stale_after_s: start one here
-                if not active or t < self._still_ns:
+                if active and t >= self._still_ns:  # the track as it was, at the last frame
+                    self._shadow(self.x, self.v, self.p00, self.p01, self.p11, t, last)
+                else:  # a still track judged beside a manoeuvre ends with the track
                     self._sh_on = False
-                elif not self._sh_on:  # after a quiet stretch: the track as it was, judged
-                    # too, from the frame before this one (where it was predicted to)
-                    was = t if last is None else last
-                    self._shadow(self.x, self.v, self.p00, self.p01, self.p11, was)
                 self._start(z, r)
                 self._last_accept_ns = t
                 if active:  # after a stale stretch: held back until a reading agrees
@@ -987,17 +981,32 @@ class RangeFilter:
         self.man_power = r_m2
         self._still_ns = _NEVER
 
-    def _shadow(self, x: float, v: float, p00: float, p01: float, p11: float, t: int) -> None:
+    def _shadow(
+        self,
+        x: float,
+        v: float,
+        p00: float,
+        p01: float,
+        p11: float,
+        t: int,
+        t_state: int | None = None,
+    ) -> None:
         """Keep the track ``x``, ``v`` (metres, m/s) with covariance ``p00``, ``p01``,
-        ``p11`` at ``t`` (ns) as the still track, judged over the next
-        ``SHADOW_FRAMES`` accepted readings against the track that goes on."""
+        ``p11``, which stands at ``t_state`` (ns; ``t`` when None), as the still track,
+        judged over the ``SHADOW_FRAMES`` accepted readings after this frame's ``t``
+        against the track that goes on: only after a quiet stretch (the published
+        variance settled by ``t``), and not over a still track already being judged.
+        Called where a manoeuvre begins or the track restarts, before either resets
+        the settled time."""
+        if t < self._still_ns or self._sh_on:
+            return
         self._sh_on = True
         self._sh_x = x
         self._sh_v = v
         self._sh_p00 = p00
         self._sh_p01 = p01
         self._sh_p11 = p11
-        self._sh_t_ns = t
+        self._sh_t_ns = t if t_state is None else t_state
         self._sh_llr = 0.0
         self._sh_left = SHADOW_FRAMES
 
