@@ -11,6 +11,7 @@ from typing import Any
 
 import pytest
 
+from lunad.filters.noise import NOISE_BOOT_SAMPLES
 from lunad.protocol.client import Subscriber
 from lunad.protocol.messages import HealthMessage, RangeMessage
 from lunad.sim.physics import RealisticSensor, Truth
@@ -67,6 +68,18 @@ def test_contract_and_seq(running: Any, subscriber: Subscriber, helpers: Any) ->
             health.append(m)
     assert len(ranges) >= 300 and health
     assert [m.seq for m in ranges] == list(range(ranges[0].seq, ranges[0].seq + len(ranges)))
+    # A subscriber that joins within the first frames sees the boot: ``stale`` until
+    # NOISE_BOOT_SAMPLES second differences (the first needs three readings) have
+    # measured the noise. It usually joins later; on a loaded machine not always.
+    boot = 0
+    while (
+        boot < len(ranges)
+        and ranges[boot].status == "dropout"
+        and ranges[boot].reasons == ["stale"]
+    ):
+        boot += 1
+    assert boot == 0 or ranges[boot - 1].seq <= NOISE_BOOT_SAMPLES + 1, ranges[boot - 1]
+    ranges = ranges[boot:]
     bad = [m for m in ranges if m.sensor != "t1" or m.status == "dropout"]
     bad += [m for m in ranges if m.range_m is None or abs(m.range_m - 2.0) >= 0.2]
     assert not bad, bad[:3]
