@@ -12,8 +12,9 @@ evidence for each choice):
    the raw readings (noise.py), which smooth motion and steps do not move. The
    reading's variance is r = c^2 / S^2 + q (paper eq. 3, q the 1 cm steps) with c
    from the fast average, which follows a change of light within about 0.3 s;
-   L_hat = (c - sigma0) / k from the slow average, fed only while the noise is above
-   the output step and near its floor (minimum statistics: clutter is not light), is
+   L_hat = (c - sigma0) / k from the slow average (its lag on a ramp of light added
+   back), fed only while the noise is above the output step and near its floor
+   (minimum statistics: clutter is not light), is
    published there and null elsewhere, and null until it has been measured
    (``LIGHT_MEASURED_SPANS`` spans of observable readings after a start). After a
    start the fast average starts again from the median of the first
@@ -86,6 +87,7 @@ from lunad.filters.noise import (
     SLOW_EVERY,
     SLOW_RESTART_SPANS,
     SLOW_RISE_RATIO,
+    SLOW_TREND_GATE,
     d2_scale,
     truncated_abs_mean,
     winsorised_abs_mean,
@@ -255,7 +257,8 @@ class RangeFilter:
     ``x``, ``v``, ``p00``, ``p01``, ``p11`` (the track: metres, m/s and their
     covariance), ``noise_fast``, ``noise_light`` and ``noise_slow`` (the noise
     statistic A of noise.py, metres: winsorised; truncated, for the light; its slow
-    average), ``c2`` (c^2 from the fast one, m^2), ``lux`` (L_hat, lux, or None
+    average, which ``_slow_of_slow`` averages again to see its lag on a ramp),
+    ``c2`` (c^2 from the fast one, m^2), ``lux`` (L_hat, lux, or None
     where it cannot be observed), ``qa`` (the process noise in force, m^2/s^3),
     ``weak``/``out_of_range``/``ambient`` (policy.py's latches), ``zone`` (the last
     published zone, for zone.py's hysteresis).
@@ -332,6 +335,7 @@ class RangeFilter:
         "_sh_x",
         "_sigma0",
         "_slow_keep",
+        "_slow_of_slow",
         "_slow_restart_w",
         "_slow_tick",
         "_slow_w",
@@ -465,7 +469,7 @@ class RangeFilter:
         self._run_gap = 0
         c0 = c.sigma0_m + c.k_m_per_lux * c.lux_init
         self.c2 = c0 * c0
-        self.noise_fast = self.noise_light = self.noise_slow = 0.0
+        self.noise_fast = self.noise_light = self.noise_slow = self._slow_of_slow = 0.0
         self._slow_w = 1.0  # its first sample replaces the prior: a running mean
         self._fast_w = 1.0 / (1.0 + FAST_PRIOR_READINGS)
         self._span_mins = [_INF] * MIN_STATS_SPANS
@@ -925,20 +929,32 @@ class RangeFilter:
         if fast < self._span_min:
             self._span_min = fast
         slow = self.noise_slow
+        slow2 = self._slow_of_slow
         if fast <= self._learn_below:  # nothing on top of the noise
             w = self._slow_w
             slow += w * (fast - slow)
+            slow2 += w * (slow - slow2)
             if w > self._slow_keep:  # a running mean until it spans enough
                 self._slow_w = w / (1.0 + w)
         if slow > self._jump * fast:  # the light fell
-            slow = fast
+            slow = slow2 = fast
             self._slow_w = self._slow_restart_w
         k = self._span_k - 1
         if k:
             self._span_k = k
         else:
-            slow = self._end_span(slow)
+            rose = self._end_span(slow)
+            if rose:  # the light rose: both start again from the floor
+                slow = slow2 = rose
         self.noise_slow = slow
+        self._slow_of_slow = slow2
+        # The slow average's lag on a ramp of light, beyond what it scatters by.
+        lag = slow - slow2
+        gate = SLOW_TREND_GATE * slow
+        if lag > gate:
+            slow += lag - gate
+        elif lag < -gate:
+            slow += lag + gate
         c2 = slow * slow * self._kL - qs2
         if c2 < obs or self._spans_seen < LIGHT_MEASURED_SPANS:
             self.lux = None
@@ -949,8 +965,9 @@ class RangeFilter:
     def _end_span(self, slow: float) -> float:
         """Close a span of the minimum statistics (every ``noise_frames`` observable
         readings): the floor becomes the least span minimum of the last
-        ``MIN_STATS_SPANS``. Returns the slow average, restarted at the floor's mean
-        when even the floor rose ``SLOW_RISE_RATIO`` above it (the light rose)."""
+        ``MIN_STATS_SPANS``. Returns the floor's mean when even the floor rose
+        ``SLOW_RISE_RATIO`` above the slow average ``slow`` (the light rose: the slow
+        average starts again from it), else 0."""
         if self._spans_seen < LIGHT_MEASURED_SPANS:
             self._spans_seen += 1
         i = self._span_i
@@ -964,7 +981,7 @@ class RangeFilter:
         if floor > SLOW_RISE_RATIO * slow:
             self._slow_w = self._slow_restart_w
             return floor
-        return slow
+        return 0.0
 
     def _start(self, z_m: float, r_m2: float) -> None:
         """Begin a track at ``z_m`` (variance ``r_m2``) with unknown speed."""

@@ -788,6 +788,30 @@ def test_the_reading_noise_follows_a_change_of_light_within_a_third_of_a_second(
         assert counts[10] <= 90, (before, after, counts)
 
 
+def test_the_light_follows_the_sun_coming_out_without_the_slow_averages_lag() -> None:
+    """The sun comes out over a dark target (sun_ramp: S = 0.235, 5 klux/s from dark
+    after 2 s). An average lags a ramp by about its length, here a second, 5 klux; the
+    slow average is kept twice and the lag the two show is added back
+    (``SLOW_TREND_GATE``). From 10 klux on, over 20 starts, ``lux_est`` is within
+    30 % or 2 klux on 72.5 % of its figures, against 64.5 % without the lag added."""
+    amp = 470
+
+    def share_within(seed: int) -> float:
+        rng = random.Random(seed)
+        flt = RangeFilter()
+        good = judged = 0
+        for k in range(8 * 250):
+            lux = max(0.0, (k * FRAME_NS * 1e-9 - 2.0) * 5000.0)
+            z = round((1.43 + rng.gauss(0, sigma_of(amp, lux))) * 100) / 100
+            est = flt.step(z, amp, k * FRAME_NS)
+            if lux >= 10_000.0 and est.lux_est is not None:
+                judged += 1
+                good += abs(est.lux_est - lux) <= max(0.3 * lux, 2000.0)
+        return good / judged
+
+    assert sum(share_within(seed) for seed in range(20)) / 20 >= 0.70
+
+
 def test_after_a_long_still_stretch_the_noise_is_measured_again() -> None:
     """A robot parked 80 s at a wall 0.50 m away (S = 10: every reading the same
     centimetre, every second difference 0), then a wall at 1.90 m with 1 cm of noise.

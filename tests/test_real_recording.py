@@ -124,7 +124,7 @@ def test_a_real_roadside_log_replays_whole_and_honestly(start_daemon: Any, tmp_p
 
     lux = [m.lux_est for m in msgs if m.lux_est is not None]
     assert len(lux) > 0.5 * n
-    # measured: median 45 klux here, still about ten times the light there was (the
+    # measured: median 47 klux here, still about ten times the light there was (the
     # roadside's clutter between 30 ms readings reads as noise; docs/filter.md); an
     # estimate learnt from the tracker's innovations read 0.6-4 million lux on a real
     # log of a sweeping TF-Luna
