@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 from pathlib import Path
 
@@ -77,6 +78,15 @@ def test_the_targets_can_fail() -> None:
     for words in words_of_each_target:
         assert words in text
     assert "the oracle's, read in hindsight: 50.0%" in text
+    assert "2-sigma coverage 50.0% outside [90%, 99%] (the oracle's own: 50.0%)" in text
+    honest_oracle = dataclasses.replace(
+        lagging,
+        methods=tuple(
+            dataclasses.replace(m, two_sigma=0.95) if m.method == "oracle" else m
+            for m in lagging.methods
+        ),
+    )
+    assert "oracle's own" not in " ".join(ev.check_targets(honest_oracle))
 
 
 def test_the_oracles_lux_reads_a_steady_light_and_says_when_the_readings_cannot() -> None:

@@ -43,7 +43,10 @@ worst step lag (frames), and for lunad the share of settled lux figures within 3
 or 2 klux and of null ones, and how many edge readings it published ok (none is the
 target). The oracle's lux is read in hindsight (the light's changes, the motion and
 the spikes known): where even it misses the lux target, the readings do not hold the
-light to that precision, and the list of misses says so. Last, the cost of one
+light to that precision, and the list of misses says so; beside a 2-sigma coverage
+lunad misses, it gives the oracle's own where that is outside the band too (a run of
+a still target holds few independent errors: even the oracle's sigma, from the true
+noise, misses the band on about one run in five). Last, the cost of one
 RangeFilter.step and the targets missed."""
 
 _EPILOG = """\
