@@ -193,13 +193,13 @@ second an average of the first, with the same weights), and on a ramp of light t
 first lags the truth by about as much as the second lags the first. On light that
 holds, that difference is the averages' scatter (its standard deviation over the
 slow average: 3.2-3.5 % on ``static``, 1.9-4.5 % on ``obstacles``, each in both
-worlds over seeds 0-2), which the light then leaves out. The sun coming out over a dark target (``sun_ramp``: 5 klux/s in the
-paper world, where the noise climbs from sigma0 slowly) read about 1 s late, 4-6 klux
-low at 10-20 klux. ``lunad eval``, seeds 140-159 (the choice) and 160-179: lux targets
-missed 89 and 84 against 97 and 90 (sun_ramp 30 and 21 against 33 and 25), nothing
-else moved; a share of 0.03 and 0.07 missed 92 and 91 on seeds 140-159, and the whole
-lag added (no share left out) 114, 98 with the slow average twice as long: it made
-the light of static scenes noisier."""
+worlds over seeds 0-2), which the light then leaves out. The sun coming out over a
+dark target (``sun_ramp``: 5 klux/s in the paper world, where the noise climbs from
+sigma0 slowly) read about 1 s late, 4-6 klux low at 10-20 klux. ``lunad eval``, seeds
+140-159 (the choice) and 160-179: lux targets missed 89 and 84 against 97 and 90
+(sun_ramp 30 and 21 against 33 and 25), nothing else moved; a share of 0.03 and 0.07
+missed 92 and 91 on seeds 140-159, and the whole lag added (no share left out) 114,
+98 with the slow average twice as long: it made the light of static scenes noisier."""
 
 LIGHT_CUT_SIGMAS = 4.0
 """Second differences beyond this many of their own standard deviations (as the light's

@@ -399,6 +399,24 @@ def test_a_step_to_a_marginal_target_is_still_followed() -> None:
     assert out.index(followed[0]) <= 4
 
 
+def test_a_step_read_in_the_weak_band_a_few_frames_apart_is_followed() -> None:
+    """A beam swept past a far, dark corner reads nothing for a while, then readings
+    of the next wall in the weak band come a few frames apart (room_sweep in the shot
+    world). Outliers with up to RUN_GAP_MAX such frames between them are one run: the
+    second reading restarts the track there, where a gap of 2 frames left the first
+    two alone and the step was followed on the fourth reading."""
+    flt = RangeFilter()
+    feed(flt, noisy(random.Random(6), 2.0, 1800, 200), 1800)
+    for k in range(200, 233):  # the corner: no distance for 0.13 s
+        flt.step(None, 45, k * FRAME_NS)
+    first = flt.step(3.96, 102, 233 * FRAME_NS)
+    assert first.range_m is None
+    for k in range(234, 238):
+        flt.step(None, 45, k * FRAME_NS)
+    second = flt.step(3.75, 101, 238 * FRAME_NS)
+    assert second.range_m == pytest.approx(3.855, abs=0.01)
+
+
 def test_a_clock_that_starts_again_starts_the_filter_afresh() -> None:
     """A recording appended to after a reboot restarts its monotonic clock (record.py);
     the daemon that recorded it then started with a fresh filter, so a replay must
