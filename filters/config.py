@@ -71,8 +71,9 @@ class FilterConfig:
             90 deg/s, is followed within a few frames (10 missed fewest targets in
             ``lunad eval`` among 5, 10, 20 and 50).
         manoeuvre_sigmas: the manoeuvre test's threshold, in standard deviations of
-            the innovations' running mean (3.5: at 3, the light jumps of
-            ``cloud_flicker`` fired it on a still target four times in 10 s).
+            the innovations' fast running mean (3.5: at 3, the light jumps of
+            ``cloud_flicker`` fired it on a still target four times in 10 s); the
+            slow mean's is ``DRIFT_SIGMAS`` (range_filter.py).
         manoeuvre_frames: readings the innovations' fast running mean spans (the
             slow one, and their mean square, span five times as many); also how
             long the raised process noise is held after the test last fired. In

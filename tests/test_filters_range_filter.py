@@ -895,13 +895,14 @@ def _start_of_motion_rms(seed: int) -> tuple[float, int]:
 
 def test_a_manoeuvre_test_that_fires_lets_the_track_catch_up_at_once() -> None:
     """When the manoeuvre test fires, P00 takes in the lag it measured, so the first
-    frames of the hold trust the readings instead of the lagging track. RMS error over
-    the first second of the motion, 20 seeds: 5.4 cm, against 6.6 cm when the raised
-    process noise alone let P grow."""
+    frames of the hold trust the readings instead of the lagging track; the slow mean
+    fires at its own, lower threshold (DRIFT_SIGMAS). RMS error over the first second
+    of the motion, 20 seeds: 5.1 cm, against 5.4 cm with the slow mean at the fast
+    one's threshold (3.5) and 6.6 cm when the raised process noise alone let P grow."""
     runs = [_start_of_motion_rms(seed) for seed in range(20)]
     frames = sum(n for _, n in runs)
     assert frames > 20 * 240
-    assert math.sqrt(sum(sq for sq, _ in runs) / frames) < 0.06
+    assert math.sqrt(sum(sq for sq, _ in runs) / frames) < 0.052
 
 
 def _after_a_false_alarm(seed: int) -> tuple[float, float, bool]:
