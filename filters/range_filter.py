@@ -14,12 +14,12 @@ evidence for each choice):
    from the fast average, which follows a change of light within about 0.3 s;
    L_hat = (c - sigma0) / k from the slow average (its lag on a ramp of light added
    back), fed only while the noise is above the output step and near its floor
-   (minimum statistics: clutter is not light), is
-   published there and null elsewhere, and null until it has been measured
-   (``LIGHT_MEASURED_SPANS`` spans of observable readings after a start). After a
-   start the fast average starts again from the median of the first
-   ``NOISE_BOOT_SAMPLES`` second differences, and the track's covariance, built with
-   the prior's reading variance, is scaled to the measured one.
+   (minimum statistics: clutter is not light), is published there and null
+   elsewhere, and null until it has been measured (``LIGHT_MEASURED_SPANS`` spans of
+   observable readings after a start). After a start the fast average starts again
+   from the median of the first ``NOISE_BOOT_SAMPLES`` second differences, and the
+   track's covariance, built with the prior's reading variance, is scaled to the
+   measured one.
 4. A constant-velocity Kalman filter whose process noise adapts to manoeuvres: it
    runs at ``accel_psd`` (nearly still: it averages a still target like a mean)
    until the innovations carry a bias that their own spread cannot explain, then at
@@ -32,14 +32,14 @@ evidence for each choice):
    fires after a quiet stretch, P00 gains the fast mean's squared bias (m^2 less its
    scatter's share): ``manoeuvre_accel_psd`` alone adds qa dt a frame to the speed's
    variance, which reaches P00 only over several frames, so the hold's first frames
-   would still trust the lagging track. After a quiet stretch the track as it was goes on beside
-   the hold as the still track, and is taken back when the next ``SHADOW_FRAMES``
-   readings favour it: a test fired by noise does not leave the track chasing it.
-   An innovation beyond ``gate_sigmas`` is an ``outlier``; ``step_confirm`` outliers
-   that agree with each other restart the track at them (a step), published
-   ``degraded`` when their amps part (``EDGE_AMP_RATIO``: an edge's mixed readings);
-   so do ``EDGE_RUN`` outliers each further off than the last and ``SIDE_RUN`` on one
-   side, at the latest of them (an edge crossed).
+   would still trust the lagging track. After a quiet stretch the track as it was
+   goes on beside the hold as the still track, and is taken back when the next
+   ``SHADOW_FRAMES`` readings favour it: a test fired by noise does not leave the
+   track chasing it. An innovation beyond ``gate_sigmas`` is an ``outlier``;
+   ``step_confirm`` outliers that agree with each other restart the track at them (a
+   step), published ``degraded`` when their amps part (``EDGE_AMP_RATIO``: an edge's
+   mixed readings); so do ``EDGE_RUN`` outliers each further off than the last and
+   ``SIDE_RUN`` on one side, at the latest of them (an edge crossed).
 5. The published sigma is honest about what P cannot see: the track's variance plus,
    for each running mean, the part of m^2 that its own scatter (1 - rho) / (1 + rho)
    times the mean square does not explain: a bias of the track (a lag, a start of
@@ -104,9 +104,9 @@ gives readings in the weak band a few frames apart (room_sweep in the shot world
 frames without a distance, then readings 5 frames apart): with 2 they never formed a
 run, and the step was followed on the fourth reading. ``lunad eval``, seeds 140-159
 (the choice) and 160-179: step lags over 3 frames 9 and 5 with 2, 3 and 4 with 4, 2
-and 4 with 6 (10 as 6), and no other target moved; on seeds 0-179, 1680 targets
-missed against 1710, three of the others moved (docs/filter.md, "How it is
-judged")."""
+and 4 with 6 (10 as 6), and no other target moved there; on seeds 0-179, 1680
+targets missed against 1710, and three targets other than step lags moved
+(docs/filter.md, "How it is judged")."""
 
 EDGE_RUN = 3
 """Outliers in a row on one side of the track, each further from it than the one

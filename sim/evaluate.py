@@ -54,19 +54,19 @@ on fewer than ``Targets.lux_ok`` of its frames, the light is not in the readings
 the precision the target asks; check_targets quotes its share beside a lux target
 lunad misses. Its lux_null is the share of frames it gives no figure.
 
-Beside a 2-sigma coverage outside the band, check_targets quotes the oracle's own
-where that is outside the band too: the oracle's sigma comes from the true noise, so
-such a run says how far one run's coverage strays by chance. On a still or slow
-target the filter's error moves slowly, and a 10-20 s run holds few independent
-errors: on seeds 140-159 the oracle is outside the band on 108 of 480 runs (44 below
-90 %, 64 above 99 %), lunad on 40 (7 and 33), 24 of them runs where the oracle is too.
-
 and, for lunad, ``mixed_ok``: readings of a beam on two surfaces at an edge
 (edges.py: the readings right after each distance step mix the old and the new
 surface) that it published ``ok``.
 
 lunad's RMSE is compared with the oracle's and median5's on the frames where both
 published (a method that drops the hardest frames must not score better for it).
+
+Beside a 2-sigma coverage outside the band, check_targets quotes the oracle's own
+where that is outside the band too: the oracle's sigma comes from the true noise, so
+such a run says how far one run's coverage strays by chance. On a still or slow
+target the filter's error moves slowly, and a 10-20 s run holds few independent
+errors: on seeds 140-159 the oracle is outside the band on 108 of 480 runs (44 below
+90 %, 64 above 99 %), lunad on 40 (7 and 33), 24 of them runs where the oracle is too.
 
 This is the only sim module that imports lunad.filters (docs/architecture.md).
 """
