@@ -32,7 +32,7 @@ evidence for each choice):
    fires after a quiet stretch, P00 gains the fast mean's squared bias (m^2 less its
    scatter's share): ``manoeuvre_accel_psd`` alone adds qa dt a frame to the speed's
    variance, which reaches P00 only over several frames, so the hold's first frames
-   would still trust the lagging track. After a quiet stretch the track as it was
+   would still trust the lagging track. Outside a hold the track as it was
    goes on beside the hold as the still track, and is taken back when the next
    ``SHADOW_FRAMES`` readings favour it: a test fired by noise does not leave the
    track chasing it. An innovation beyond ``gate_sigmas`` is an ``outlier``;
@@ -190,7 +190,7 @@ and no process noise (docs/filter.md section 5; tests/test_filters_range_filter.
 SHADOW_FRAMES = 30
 """Accepted readings over which the still track is judged against the track that left
 it. When the manoeuvre test fires, or outliers or a stale stretch restart the track,
-after a quiet stretch (the published variance settled, ``STILL_SETTLE_TAUS``), the
+outside a hold (a track's start or a manoeuvre's ``manoeuvre_frames``), the
 track as it was goes on beside the new one at ``accel_psd`` (a target that holds its
 course), fed the same accepted readings, and each reading adds to the log-likelihood
 ratio of their predictions; after this many the still track is taken back, settled,
@@ -208,7 +208,13 @@ not only a quiet stretch, and over 50 readings, 248 and 289, at 605.5 bytecodes 
 frame against 585.3 (over 75 readings 249); judged at the end of the hold (10
 readings), 165 against 166 on seeds 0-8 and 10-19; each reading's term capped at 2-4
 sigmas, 249-251; the larger of the two covariances taken with the still track's state,
-255 (RMSE 77)."""
+255 (RMSE 77). Judged only once the published variance had settled
+(``STILL_SETTLE_TAUS``: under 60 klux at the start that lies seconds after the hold,
+and a jump of light then restarted the track on two noisy readings with no still track
+beside it): seeds 280-299 (the choice) and 300-339, 176 and 379 targets missed against
+175 and 370 outside a hold (RMSE 52 and 94 against 49 and 88); taking the still track
+back early on strong evidence (a likelihood ratio of 100, Wald's sequential test),
+173 and 373."""
 
 STILL_SETTLE_TAUS = 3.0
 """After a manoeuvre hold (or a track's start) that error falls from P00 to
@@ -805,7 +811,7 @@ class RangeFilter:
                         extra += COVER_SHARE * e2
                     self.extra = extra
             else:  # no track yet, or none accepted for stale_after_s: start one here
-                if active and t >= self._still_ns:  # the track as it was, at the last frame
+                if active and not self._hold:  # the track as it was, at the last frame
                     self._shadow(self.x, self.v, self.p00, self.p01, self.p11, t, last)
                 else:  # a still track judged beside a manoeuvre ends with the track
                     self._sh_on = False
@@ -1032,11 +1038,10 @@ class RangeFilter:
         """Keep the track ``x``, ``v`` (metres, m/s) with covariance ``p00``, ``p01``,
         ``p11``, which stands at ``t_state`` (ns; ``t`` when None), as the still track,
         judged over the ``SHADOW_FRAMES`` accepted readings after this frame's ``t``
-        against the track that goes on: only after a quiet stretch (the published
-        variance settled by ``t``), and not over a still track already being judged.
-        Called where a manoeuvre begins or the track restarts, before either resets
-        the settled time."""
-        if t < self._still_ns or self._sh_on:
+        against the track that goes on: only outside a hold (its state then the track
+        at ``accel_psd``), and not over a still track already being judged. Called
+        where a manoeuvre begins or the track restarts, before either starts a hold."""
+        if self._hold or self._sh_on:
             return
         self._sh_on = True
         self._sh_x = x
