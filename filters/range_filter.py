@@ -32,7 +32,7 @@ evidence for each choice):
    fires after a quiet stretch, P00 gains the fast mean's squared bias (m^2 less its
    scatter's share): ``manoeuvre_accel_psd`` alone adds qa dt a frame to the speed's
    variance, which reaches P00 only over several frames, so the hold's first frames
-   would still trust the lagging track. Outside a hold the track as it was
+   would still trust the lagging track. A while after a hold the track as it was
    goes on beside the hold as the still track, and is taken back when the next
    ``SHADOW_FRAMES`` readings favour it: a test fired by noise does not leave the
    track chasing it. An innovation beyond ``gate_sigmas`` is an ``outlier``;
@@ -190,7 +190,7 @@ and no process noise (docs/filter.md section 5; tests/test_filters_range_filter.
 SHADOW_FRAMES = 30
 """Accepted readings over which the still track is judged against the track that left
 it. When the manoeuvre test fires, or outliers or a stale stretch restart the track,
-outside a hold (a track's start or a manoeuvre's ``manoeuvre_frames``), the
+``SHADOW_QUIET_S`` or more after a hold (a track's start or a manoeuvre), the
 track as it was goes on beside the new one at ``accel_psd`` (a target that holds its
 course), fed the same accepted readings, and each reading adds to the log-likelihood
 ratio of their predictions; after this many the still track is taken back, settled,
@@ -208,13 +208,33 @@ not only a quiet stretch, and over 50 readings, 248 and 289, at 605.5 bytecodes 
 frame against 585.3 (over 75 readings 249); judged at the end of the hold (10
 readings), 165 against 166 on seeds 0-8 and 10-19; each reading's term capped at 2-4
 sigmas, 249-251; the larger of the two covariances taken with the still track's state,
-255 (RMSE 77). Judged only once the published variance had settled
-(``STILL_SETTLE_TAUS``: under 60 klux at the start that lies seconds after the hold,
-and a jump of light then restarted the track on two noisy readings with no still track
-beside it): seeds 280-299 (the choice) and 300-339, 176 and 379 targets missed against
-175 and 370 outside a hold (RMSE 52 and 94 against 49 and 88); taking the still track
-back early on strong evidence (a likelihood ratio of 100, Wald's sequential test),
-173 and 373."""
+255 (RMSE 77). When a still track is judged: ``SHADOW_QUIET_S``; when it is let go
+early: ``SHADOW_DROP_LLR``. Taking it back early on strong evidence (a likelihood
+ratio of 100, Wald's sequential test) missed 546 targets on seeds 280-339 against
+545, with no wait after the hold."""
+
+SHADOW_QUIET_S = 0.2
+"""A still track is judged only where a manoeuvre or a restart comes at least this long
+after the last hold ended (a track's start or a manoeuvre's ``manoeuvre_frames``):
+the track as it was has then run at ``accel_psd`` long enough to be a track that holds
+its course. Not the published variance's settling (``STILL_SETTLE_TAUS``): that
+scales with the reading noise, and under 60 klux at the start it lies seconds after
+the hold, so that a jump of light that restarted the track on two noisy readings
+that agreed had no still track beside it (cloud_flicker: the new track chased the
+noise at up to 11 m/s). ``lunad eval``, seeds 280-299 and 300-339 together: 547
+targets missed against 555 when judged only once settled (RMSE 137 against 146); 545
+with no wait after the hold, which judged the still track on a quarter of the frames
+of room_sweep, a beam in constant motion (596 bytecodes a frame against 590 on
+``lunad bench``); 548 at 0.4 s."""
+
+SHADOW_DROP_LLR = 20.0
+"""The still track is let go as soon as the log-likelihood ratio of the track over it
+passes this (a ratio of about 5e8): a real step or manoeuvre leaves it that far behind
+within a reading or two (a step of 30 cm under 2 cm of noise adds over 100 a reading),
+and judging it further costs frames for nothing. A jump of light whose noise the
+filter still underestimates threefold adds about 15 on its first reading and must not
+end the judging. ``lunad eval``, seeds 280-339: the same 547 targets missed as with no
+such limit, at 589.9 bytecodes a frame against 592.5 (``lunad bench``)."""
 
 STILL_SETTLE_TAUS = 3.0
 """After a manoeuvre hold (or a track's start) that error falls from P00 to
@@ -339,6 +359,8 @@ class RangeFilter:
         "_q_m2",
         "_qa_hi",
         "_qa_lo",
+        "_quiet_after_ns",
+        "_quiet_ns",
         "_refresh_ticks",
         "_run_amp",
         "_run_away",
@@ -439,6 +461,7 @@ class RangeFilter:
         self._drift_noise = (1.0 - rho) / (1.0 + rho)
         self._drift_thr2 = DRIFT_SIGMAS * DRIFT_SIGMAS * self._drift_noise
         self._hold_frames = c.manoeuvre_frames
+        self._quiet_after_ns = round(SHADOW_QUIET_S * 1e9)
         self._unrel2 = c.sigma_unreliable_m * c.sigma_unreliable_m
         self._outlier_drop2 = 4.0 * self._unrel2
         # Noise (noise.py).
@@ -484,7 +507,7 @@ class RangeFilter:
         self._hold = 0
         self.man_mean = self.drift = self.extra = 0.0
         self.man_power = 1.0
-        self._still_ns = _NEVER
+        self._still_ns = self._quiet_ns = _NEVER
         self._sh_on = False
         self._sh_x = self._sh_v = self._sh_p00 = self._sh_p01 = self._sh_p11 = 0.0
         self._sh_llr = 0.0
@@ -756,7 +779,7 @@ class RangeFilter:
                         self.man_mean = self.drift = 0.0
                         self._hold = 0
                         self.qa = self._qa_lo
-                        self._still_ns = t
+                        self._still_ns = self._quiet_ns = t
                     k0 = p00 / sp
                     k1 = p01 / sp
                     self.x = x + k0 * e
@@ -794,7 +817,7 @@ class RangeFilter:
                             self.p00 += excess
                         self._hold = self._hold_frames
                         self.qa = self._qa_hi
-                        self._still_ns = _NEVER
+                        self._still_ns = self._quiet_ns = _NEVER
                     elif self._hold:  # a manoeuvre lasts: hold, as for a fresh track
                         hold = self._hold - 1
                         self._hold = hold
@@ -811,7 +834,7 @@ class RangeFilter:
                         extra += COVER_SHARE * e2
                     self.extra = extra
             else:  # no track yet, or none accepted for stale_after_s: start one here
-                if active and not self._hold:  # the track as it was, at the last frame
+                if active and t >= self._quiet_ns:  # the track as it was, at the last frame
                     self._shadow(self.x, self.v, self.p00, self.p01, self.p11, t, last)
                 else:  # a still track judged beside a manoeuvre ends with the track
                     self._sh_on = False
@@ -1023,7 +1046,7 @@ class RangeFilter:
         self._hold = self._hold_frames
         self.man_mean = self.drift = self.extra = 0.0
         self.man_power = r_m2
-        self._still_ns = _NEVER
+        self._still_ns = self._quiet_ns = _NEVER
 
     def _shadow(
         self,
@@ -1038,10 +1061,11 @@ class RangeFilter:
         """Keep the track ``x``, ``v`` (metres, m/s) with covariance ``p00``, ``p01``,
         ``p11``, which stands at ``t_state`` (ns; ``t`` when None), as the still track,
         judged over the ``SHADOW_FRAMES`` accepted readings after this frame's ``t``
-        against the track that goes on: only outside a hold (its state then the track
-        at ``accel_psd``), and not over a still track already being judged. Called
-        where a manoeuvre begins or the track restarts, before either starts a hold."""
-        if self._hold or self._sh_on:
+        against the track that goes on: only ``SHADOW_QUIET_S`` or more after a hold
+        ended (its state then the track at ``accel_psd``), and not over a still track
+        already being judged. Called where a manoeuvre begins or the track restarts,
+        before either starts a hold."""
+        if t < self._quiet_ns or self._sh_on:
             return
         self._sh_on = True
         self._sh_x = x
@@ -1074,6 +1098,9 @@ class RangeFilter:
         es = z - x
         ss = p00 + r
         llr = self._sh_llr + 0.5 * (es * es / ss - e2 / sp + log(ss / sp))
+        if llr > SHADOW_DROP_LLR:
+            self._sh_on = False
+            return False
         left = self._sh_left - 1
         if not left:
             self._sh_on = False
@@ -1105,6 +1132,7 @@ class RangeFilter:
         if dt_s > 0.0 and self._qa_lo > 0.0:
             tau_s = sqrt(sqrt(r_m2 * dt_s / self._qa_lo))
             self._still_ns = t_ns + round(STILL_SETTLE_TAUS * tau_s * 1e9)
+            self._quiet_ns = t_ns + self._quiet_after_ns
 
     def _predict(self, dt_s: float) -> None:
         """Move the state ``dt_s`` (> 0) seconds ahead without a reading."""
