@@ -87,6 +87,7 @@ from lunad.filters.noise import (
     SLOW_EVERY,
     SLOW_RESTART_SPANS,
     SLOW_RISE_RATIO,
+    SLOW_RISE_START,
     SLOW_TREND_GATE,
     d2_scale,
     truncated_abs_mean,
@@ -1016,10 +1017,15 @@ class RangeFilter:
         """Close a span of the minimum statistics (every ``noise_frames`` observable
         readings): the floor becomes the least span minimum of the last
         ``MIN_STATS_SPANS``. Returns the floor's mean when even the floor rose
-        ``SLOW_RISE_RATIO`` above the slow average ``slow`` (the light rose: the slow
-        average starts again from it), else 0."""
-        if self._spans_seen < LIGHT_MEASURED_SPANS:
-            self._spans_seen += 1
+        ``SLOW_RISE_RATIO`` above the slow average ``slow`` (``SLOW_RISE_START`` until
+        the light's first figure; the light rose: the slow average starts again from
+        it), else 0."""
+        seen = self._spans_seen
+        if seen < LIGHT_MEASURED_SPANS:
+            self._spans_seen = seen + 1
+            rise = SLOW_RISE_START
+        else:
+            rise = SLOW_RISE_RATIO
         i = self._span_i
         mins = self._span_mins
         mins[i] = self._span_min
@@ -1028,7 +1034,7 @@ class RangeFilter:
         self._span_k = self._span_frames
         floor = min(mins) * _INV_MIN_STATS_BIAS
         self._learn_below = MIN_STATS_NEAR * floor
-        if floor > SLOW_RISE_RATIO * slow:
+        if floor > rise * slow:
             self._slow_w = self._slow_restart_w
             return floor
         return 0.0
