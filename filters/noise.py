@@ -191,12 +191,12 @@ seeds 420-459 (the choice) and 460-499: 368 and 352 targets missed against 388 a
 at 1.3, all of them lux, over nine scenarios; with this ratio from the start too, 1.4,
 1.5, 1.6, 1.8 and 2.2 missed 372, 369, 367, 370 and 372 on seeds 420-459 (1.2 read the
 floor's scatter as light); the floor over 5, 6 or 8 spans at 1.3 instead, 378, 375 and
-373 (sun_ramp worse); 1.6, or 1.3 or 1.4 at two span ends in a row, 379 and 371. The
-cost is on light that changes: settled lux within tolerance on 74.3 % of cloud_flicker's
-frames in the paper world on average against 78.7 %, 90.5 % against 91.9 % on sun_ramp
-(seeds 460-479; both scenarios miss the target at nearly every seed either way). The
-real roadside log's median ``lux_est`` is 46.9 klux against 47.4 and its 90th
-percentile 105 klux against 136."""
+373 (sun_ramp worse); a rise confirmed at two span ends in a row (1.3 or 1.4 there,
+1.6 at once), 379 and 371. The cost is on light that changes: settled lux within
+tolerance on 74.3 % of cloud_flicker's frames in the paper world on average against
+78.7 %, 90.5 % against 91.9 % on sun_ramp (seeds 460-479; both scenarios miss the
+target at nearly every seed either way). The real roadside log's median ``lux_est``
+is 46.9 klux against 47.4 and its 90th percentile 105 klux against 136."""
 SLOW_RISE_START = 1.3
 """``SLOW_RISE_RATIO`` until the light's first figure (``LIGHT_MEASURED_SPANS`` spans
 after a start): the slow average then still holds the fast average's climb from the
