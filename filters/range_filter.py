@@ -278,6 +278,7 @@ _UNCONFIRMED = 1e-12
 _new = tuple.__new__
 """Builds an ``Estimate`` from a tuple without the ``NamedTuple``'s generated Python
 ``__new__``: one C call instead of a Python frame, on every frame."""
+_SHADOW_QUIET_NS = round(SHADOW_QUIET_S * 1e9)  # SHADOW_QUIET_S in the clock's unit
 
 
 def _cv_predicted(
@@ -360,7 +361,6 @@ class RangeFilter:
         "_q_m2",
         "_qa_hi",
         "_qa_lo",
-        "_quiet_after_ns",
         "_quiet_ns",
         "_refresh_ticks",
         "_run_amp",
@@ -462,7 +462,6 @@ class RangeFilter:
         self._drift_noise = (1.0 - rho) / (1.0 + rho)
         self._drift_thr2 = DRIFT_SIGMAS * DRIFT_SIGMAS * self._drift_noise
         self._hold_frames = c.manoeuvre_frames
-        self._quiet_after_ns = round(SHADOW_QUIET_S * 1e9)
         self._unrel2 = c.sigma_unreliable_m * c.sigma_unreliable_m
         self._outlier_drop2 = 4.0 * self._unrel2
         # Noise (noise.py).
@@ -1138,7 +1137,7 @@ class RangeFilter:
         if dt_s > 0.0 and self._qa_lo > 0.0:
             tau_s = sqrt(sqrt(r_m2 * dt_s / self._qa_lo))
             self._still_ns = t_ns + round(STILL_SETTLE_TAUS * tau_s * 1e9)
-            self._quiet_ns = t_ns + self._quiet_after_ns
+            self._quiet_ns = t_ns + _SHADOW_QUIET_NS
 
     def _predict(self, dt_s: float) -> None:
         """Move the state ``dt_s`` (> 0) seconds ahead without a reading."""
