@@ -994,7 +994,7 @@ class RangeFilter:
             self._span_k = k
         else:
             rose = self._end_span(slow)
-            if rose:  # the light rose: both start again from the floor
+            if rose:  # the light rose: both start again from the newest span
                 slow = slow2 = rose
         self.noise_slow = slow
         self._slow_of_slow = slow2
@@ -1015,27 +1015,28 @@ class RangeFilter:
     def _end_span(self, slow: float) -> float:
         """Close a span of the minimum statistics (every ``noise_frames`` observable
         readings): the floor becomes the least span minimum of the last
-        ``MIN_STATS_SPANS``. Returns the floor's mean when even the floor rose
-        ``SLOW_RISE_RATIO`` above the slow average ``slow`` (``SLOW_RISE_START`` until
-        the light's first figure; the light rose: the slow average starts again from
-        it), else 0."""
+        ``MIN_STATS_SPANS``. When even the floor rose ``SLOW_RISE_RATIO`` above the slow
+        average ``slow`` (the light rose), returns the value the slow average starts
+        again from: the newest span's minimum (noise.py); until the light's first
+        figure, the floor's mean, at ``SLOW_RISE_START``. Else 0."""
         seen = self._spans_seen
-        if seen < LIGHT_MEASURED_SPANS:
-            self._spans_seen = seen + 1
-            rise = SLOW_RISE_START
-        else:
-            rise = SLOW_RISE_RATIO
         i = self._span_i
         mins = self._span_mins
-        mins[i] = self._span_min
+        newest = self._span_min
+        mins[i] = newest
         self._span_i = i + 1 if i + 1 < MIN_STATS_SPANS else 0
         self._span_min = _INF
         self._span_k = self._span_frames
         floor = min(mins) * _INV_MIN_STATS_BIAS
         self._learn_below = MIN_STATS_NEAR * floor
-        if floor > rise * slow:
+        if seen < LIGHT_MEASURED_SPANS:
+            self._spans_seen = seen + 1
+            if floor > SLOW_RISE_START * slow:
+                self._slow_w = self._slow_restart_w
+                return floor
+        elif floor > SLOW_RISE_RATIO * slow:
             self._slow_w = self._slow_restart_w
-            return floor
+            return newest
         return 0.0
 
     def _start(self, z_m: float, r_m2: float) -> None:
