@@ -998,7 +998,7 @@ class RangeFilter:
             self._span_k = k
         else:
             rose = self._end_span(slow)
-            if rose:  # the light rose: both start again from the newest span
+            if rose:  # the light rose: both start again (_end_span says from what)
                 slow = slow2 = rose
         self.noise_slow = slow
         self._slow_of_slow = slow2
