@@ -1035,12 +1035,12 @@ class RangeFilter:
         self._learn_below = MIN_STATS_NEAR * floor
         if seen < LIGHT_MEASURED_SPANS:
             self._spans_seen = seen + 1
-            if floor > SLOW_RISE_START * slow:
-                self._slow_w = self._slow_restart_w
-                return floor
-        elif floor > SLOW_RISE_RATIO * slow:
+            rise, restart = SLOW_RISE_START, floor
+        else:
+            rise, restart = SLOW_RISE_RATIO, newest
+        if floor > rise * slow:
             self._slow_w = self._slow_restart_w
-            return newest
+            return restart
         return 0.0
 
     def _start(self, z_m: float, r_m2: float) -> None:
