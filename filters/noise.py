@@ -139,17 +139,18 @@ without edge readings: 44 missed targets against 48 with the plain average
 NOISE_BOOT_SAMPLES = 9
 """After a start, the fast noise average starts again from the median of the first this
 many second differences (over ``NORMAL_MEDIAN_ABS``: a scale that a step or a spike
-among them does not move), counted as that many readings, and the track's covariance,
-built so far with the prior's reading variance, is scaled to the new one. The prior is
-a guess: under 60 klux a dark prior is five times too quiet, the winsorised average,
-whose clip follows its own value, climbs from there to within 80 % of the truth only
-after about 60 readings, and the track has meanwhile counted its first readings as
-some twenty later ones each. ``lunad eval`` (seeds 0-2 and 3-8): 22 and 74 targets
-missed against 23 and 78 (RMSE against the oracle 5 and 20 against 8 and 23), with a
-5-sigma miss at 0.58 % on room_sweep in the shot world among the 22; 7 and 11 samples
-missed 23 and 76, 23 and 73; without the scaling of the covariance, 25 and 79. Until
-the boot ends the estimate is not published (range_filter.py; docs/filter.md section
-3 has the figures)."""
+among them does not move), counted as that many readings, and the first track, built so
+far with the prior's reading variance, runs again over its readings with the new one
+(range_filter.py, ``_refilter``). The prior is a guess: under 60 klux a dark prior is
+five times too quiet, the winsorised average, whose clip follows its own value, climbs
+from there to within 80 % of the truth only after about 60 readings, and the track has
+meanwhile counted its first readings as some twenty later ones each. ``lunad eval``
+(seeds 0-2 and 3-8), with the track's covariance scaled to the new variance instead of
+the track run again: 22 and 74 targets missed against 23 and 78 (RMSE against the
+oracle 5 and 20 against 8 and 23), with a 5-sigma miss at 0.58 % on room_sweep in the
+shot world among the 22; 7 and 11 samples missed 23 and 76, 23 and 73; without the
+scaling of the covariance, 25 and 79. Until the boot ends the estimate is not
+published (range_filter.py; docs/filter.md section 3 has the figures)."""
 NORMAL_MEDIAN_ABS = 0.6744897501960817
 """The median of |Z| for standard normal Z (sqrt(2) erfinv(1/2)): the median absolute
 second difference over this is its standard deviation."""

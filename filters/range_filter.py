@@ -18,8 +18,8 @@ evidence for each choice):
    elsewhere, and null until it has been measured (``LIGHT_MEASURED_SPANS`` spans of
    observable readings after a start). After a start the fast average starts again
    from the median of the first ``NOISE_BOOT_SAMPLES`` second differences, and the
-   track's covariance, built with the prior's reading variance, is scaled to the
-   measured one.
+   first track, which weighted its readings by the prior's variance, runs again over
+   them with the measured one (``_refilter``).
 4. A constant-velocity Kalman filter whose process noise adapts to manoeuvres: it
    runs at ``accel_psd`` (nearly still: it averages a still target like a mean)
    until the innovations carry a bias that their own spread cannot explain, then at
@@ -322,6 +322,7 @@ class RangeFilter:
         "_amp_strong_again",
         "_boot",
         "_boot_ok",
+        "_boot_track",
         "_boot_until_ns",
         "_c2_floor",
         "_clip_a",
@@ -537,6 +538,7 @@ class RangeFilter:
         self._z2: float | None = None
         self._gap = self._gap_prev = 0
         self._boot: list[float] | None = [] if self._boot_ok else None
+        self._boot_track: list[tuple[float, float, int]] | None = [] if self._boot_ok else None
         self._boot_until_ns = _NEVER
         self._holding = self._boot_ok  # no boot: nothing to hold
         self.zone = _UNRELIABLE
@@ -554,7 +556,7 @@ class RangeFilter:
         needs no boot (noise.py): the estimate is published from the first reading."""
         if amp <= 0:
             raise ValueError(f"assume_reading_sigma: amp must be above 0, got {amp!r}")
-        self._boot = None
+        self._boot = self._boot_track = None
         self._holding = False
         s = amp * self.inv_amp_ref
         c2 = sigma_m * sigma_m * s * s
@@ -664,7 +666,7 @@ class RangeFilter:
                     y = (d if d >= 0.0 else -d) * s
                     w = self._fast_w
                     if w > self._fast_keep:  # still a running mean, after a start
-                        w = self._learning(y, s2, w)
+                        w = self._learning(y, s2, w, last)
                     light = self.noise_light
                     fast = self.noise_fast
                     lim = self._clip_a * fast
@@ -865,13 +867,18 @@ class RangeFilter:
                 reasons = _WEAK_OUTLIER
             elif outlier_e * outlier_e > self._outlier_drop2:  # a sigma that covers it
                 reasons = _OUTLIER  # would say "unreliable": the robot gets no figure
-        if self._holding and not reasons:
+        if self._holding:
             # A start: no estimate while the noise is not measured (noise.py) or the first
             # track's own sigma is beyond usable, for at most stale_after_s from its start.
-            if t >= self._boot_until_ns:
-                self._holding = False
-            elif self._boot is not None or self.p00 > self._unrel2:
-                reasons = _WEAK_STALE if marginal else _STALE
+            boot_track = self._boot_track
+            if boot_track is not None and z is not None:  # the boot's readings, for _refilter
+                boot_track.append((z, s2, t))
+            if not reasons:
+                if t >= self._boot_until_ns:
+                    self._holding = False
+                    self._boot_track = None
+                elif self._boot is not None or self.p00 > self._unrel2:
+                    reasons = _WEAK_STALE if marginal else _STALE
         if not reasons and self.active:
             x = self.x
             if x >= self._min_m and x <= self._max_m:
@@ -943,13 +950,16 @@ class RangeFilter:
             reasons = (*reasons, Reason.STALE) if reasons else _STALE
         return _new(Estimate, (None, None, self.lux, s, _DROPOUT, reasons, _UNRELIABLE))
 
-    def _learning(self, y: float, s2: float, w: float) -> float:
+    def _learning(self, y: float, s2: float, w: float, t_state: int | None) -> float:
         """Take the sample ``y`` (|d2| S, metres) while the fast noise average is still a
         running mean (after a start), and return its weight ``w`` in the averages.
         The ``NOISE_BOOT_SAMPLES``-th sample after a start ends the boot (noise.py):
         the fast average starts again from the samples' median, counted as that many
-        readings, and the track's covariance, built with the prior's reading variance,
-        is scaled to the new one. ``s2`` is S^2 of the reading."""
+        readings, and the first track runs again over the readings it took with the
+        new reading variance (``_refilter``); where it cannot (a run of outliers
+        pending, or the boot outlasted ``stale_after_s``), its covariance, built with
+        the prior's variance, is scaled to the new one. ``s2`` is S^2 of the reading
+        and ``t_state`` (ns) the time the track stands at, the last frame's."""
         boot = self._boot
         if boot is not None:
             boot.append(y)
@@ -962,15 +972,92 @@ class RangeFilter:
                     c2 = self._c2_floor
                     sd = d2_scale(c2, qs2)
                 if self.active:
-                    ratio = (c2 + qs2) / (self.c2 + qs2)  # r_new / r_old: the same S
-                    self.p00 *= ratio
-                    self.p01 *= ratio
-                    self.p11 *= ratio
+                    boot_track = self._boot_track
+                    if boot_track and not self._run_n:
+                        self._refilter(boot_track, c2, t_state)
+                    else:
+                        ratio = (c2 + qs2) / (self.c2 + qs2)  # r_new / r_old: the same S
+                        self.p00 *= ratio
+                        self.p01 *= ratio
+                        self.p11 *= ratio
+                self._boot_track = None
                 self.c2 = c2
                 self.noise_fast = self._m1 * sd
                 w = 1.0 / (1.0 + NOISE_BOOT_SAMPLES)
         self._fast_w = w / (1.0 + w)
         return w
+
+    def _refilter(
+        self, readings: list[tuple[float, float, int]], c2: float, t_state: int | None
+    ) -> None:
+        """Run the first track again over ``readings``, the ones it took during the boot
+        (metres, S^2 and nanoseconds each), now that the boot has measured the noise
+        ``c2`` (c^2, m^2): its state and covariance become those of a track that knew
+        the noise from its first reading, brought to ``t_state`` (ns, the last frame's
+        time). The track ran on the prior's noise meanwhile; under 60 klux that is about
+        five times too quiet, and its hold (``manoeuvre_frames`` readings at
+        ``manoeuvre_accel_psd``) took the scatter of its first readings for a speed of
+        metres a second, which the process noise after the hold is too small to undo
+        for a second or more. A reading beyond ``gate_sigmas`` of the track is left out
+        and ``step_confirm`` of them in a row start it again, as the track would have;
+        the innovation means start again."""
+        q = self._q_m2
+        gate2 = self._gate2
+        qa_hi = self._qa_hi
+        qa_lo = self._qa_lo
+        x, s2, t_prev = readings[0]
+        v = p01 = dt = 0.0
+        p00 = r = c2 / s2 + q
+        p11 = self._v0var
+        hold = self._hold_frames
+        confirm = self._confirm
+        out = 0
+        for z, s2, t in readings[1:]:
+            dt = (t - t_prev) * 1e-9
+            if dt > 0.0:
+                x, p00, p01, p11 = _cv_predicted(x, v, p00, p01, p11, qa_hi if hold else qa_lo, dt)
+                t_prev = t
+            r = c2 / s2 + q
+            e = z - x
+            sp = p00 + r
+            if e * e > gate2 * sp:
+                out += 1
+                if out >= confirm:
+                    out = 0
+                    x = z
+                    v = p01 = 0.0
+                    p00 = r
+                    p11 = self._v0var
+                    hold = self._hold_frames
+                continue
+            out = 0
+            k0 = p00 / sp
+            k1 = p01 / sp
+            x += k0 * e
+            v += k1 * e
+            p11 -= k1 * p01
+            p00 = k0 * r
+            p01 = k1 * r
+            if hold:
+                hold -= 1
+        if t_state is not None and t_state > t_prev:
+            x, p00, p01, p11 = _cv_predicted(
+                x, v, p00, p01, p11, qa_hi if hold else qa_lo, (t_state - t_prev) * 1e-9
+            )
+        self.x = x
+        self.v = v
+        self.p00 = p00
+        self.p01 = p01
+        self.p11 = p11 if p11 > 0.0 else 0.0
+        self.man_mean = self.drift = self.extra = 0.0
+        self.man_power = r
+        self._hold = hold
+        if hold:
+            self.qa = qa_hi
+            self._still_ns = self._quiet_ns = _NEVER
+        else:
+            self.qa = qa_lo
+            self._settle(t_prev, r, dt)
 
     def _slow_side(self, fast: float, qs2: float, obs: float) -> None:
         """Feed ``fast``, the fast average that the light is read from (``noise_light``,

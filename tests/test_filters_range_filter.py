@@ -754,13 +754,42 @@ def test_the_first_readings_noise_is_measured_not_taken_from_the_prior() -> None
     assert inside / published >= 0.9
 
 
+def test_the_first_track_is_run_again_with_the_noise_the_boot_measured() -> None:
+    """The same still target under 60 klux, 100 starts: the track's hold weighted its
+    first readings by the prior's noise, 4.75 times too quiet, and took their scatter
+    for a speed. When the boot has measured the noise the track runs again over those
+    readings with it: 15 readings in, the median speed is 1.1 m/s (1.8 m/s with the
+    track only scaled), and over the first 100 frames the published estimates are
+    3.95 cm off the truth, RMS (4.30 cm scaled)."""
+    amp = 300
+    lux = 60_000.0
+    speeds: list[float] = []
+    sq = 0.0
+    published = 0
+    for seed in range(100):
+        flt = RangeFilter()
+        zs = noisy(random.Random(seed), 3.0, amp, 100, lux)
+        est = feed(flt, zs[:15], amp)
+        speeds.append(abs(flt.v))
+        est += feed(flt, zs[15:], amp, k0=15)
+        for e in est:
+            if e.range_m is not None:
+                published += 1
+                sq += (e.range_m - 3.0) ** 2
+    assert sorted(speeds)[50] < 1.4
+    assert math.sqrt(sq / published) < 0.041
+
+
 def test_a_first_track_too_noisy_to_use_is_held_back_until_it_is_not() -> None:
     """A grey target at 3 m under 60 klux, 25 cm of noise a reading, 200 starts: once
     the boot has measured the noise (the 10th reading) the first track's sigma is
     still above ``sigma_unreliable_m``, and published from there its estimates were
     more than 0.3 m off 44 times in the first half second. Held until the track's
-    sigma (sqrt P00) is under it, for at most ``stale_after_s``: 20 times, the first
-    estimate at the 20th reading (median)."""
+    sigma (sqrt P00) is under it, for at most ``stale_after_s``: 18 times, the first
+    estimate at the 20th reading (median). With the track then run again over its
+    first readings with the measured noise (the test above), 9 times, and the first
+    estimate at the 10th reading: its sigma is under the bound from the boot's end on
+    in most starts."""
     amp = 152
     lux = 60_000.0
     assert sigma_of(amp, lux) == pytest.approx(0.25, rel=0.01)
@@ -775,8 +804,8 @@ def test_a_first_track_too_noisy_to_use_is_held_back_until_it_is_not() -> None:
         for _, e in usable:
             assert e.sigma_m is not None and e.range_m is not None
             off += abs(e.range_m - 3.0) > 0.3
-    assert off <= 25
-    assert 15 <= sorted(firsts)[100] <= 30
+    assert off <= 12
+    assert 10 <= sorted(firsts)[100] <= 15
 
 
 def test_after_a_close_target_the_light_waits_for_the_new_readings() -> None:
@@ -937,12 +966,13 @@ def test_a_manoeuvre_test_that_fires_lets_the_track_catch_up_at_once() -> None:
     """When the manoeuvre test fires, P00 takes in the lag it measured, so the first
     frames of the hold trust the readings instead of the lagging track; the slow mean
     fires at its own, lower threshold (DRIFT_SIGMAS). RMS error over the first second
-    of the motion, 20 seeds: 5.1 cm, against 5.4 cm with the slow mean at the fast
-    one's threshold (3.5) and 6.6 cm when the raised process noise alone let P grow."""
+    of the motion, 20 seeds: 5.2 cm, against 5.3 cm with the slow mean at the fast
+    one's threshold (3.5) and 6.2 cm when the raised process noise alone let P grow
+    (over 60 seeds 5.4, 5.6 and 6.6 cm)."""
     runs = [_start_of_motion_rms(seed) for seed in range(20)]
     frames = sum(n for _, n in runs)
     assert frames > 20 * 240
-    assert math.sqrt(sum(sq for sq, _ in runs) / frames) < 0.052
+    assert math.sqrt(sum(sq for sq, _ in runs) / frames) < 0.0525
 
 
 def _after_a_false_alarm(seed: int) -> tuple[float, float, bool]:
