@@ -161,6 +161,15 @@ a reading the track does not explain (beyond ``COVER_SIGMAS``, or an ``outlier``
 quarter puts the reading at two published sigmas from the estimate."""
 _COVER2 = COVER_SIGMAS * COVER_SIGMAS
 
+BOOT_TRACK_READINGS = 64
+"""The most readings of the first track kept for ``RangeFilter._refilter`` to run it
+again over at the noise's boot's end: the boot needs ``NOISE_BOOT_SAMPLES`` second
+differences, eleven readings in a row at best and about twice that where every other
+frame has none. A boot that outlasts this, or ``stale_after_s`` from the first track
+(readings too sparse to measure the noise: a beam that finds a surface once a second),
+has its covariance scaled instead, and the memory the filter holds stays bounded
+whatever the readings."""
+
 DRIFT_SPAN = 5
 """The slow innovation mean (``drift``) and the innovations' mean square span this many
 times ``manoeuvre_frames`` readings: the slow mean sees a bias too small for the fast
@@ -872,7 +881,10 @@ class RangeFilter:
             # track's own sigma is beyond usable, for at most stale_after_s from its start.
             boot_track = self._boot_track
             if boot_track is not None and z is not None:  # the boot's readings, for _refilter
-                boot_track.append((z, s2, t))
+                if t < self._boot_until_ns and len(boot_track) < BOOT_TRACK_READINGS:
+                    boot_track.append((z, s2, t))
+                else:  # a boot this long is scaled instead: it keeps nothing more
+                    self._boot_track = None
             if not reasons:
                 if t >= self._boot_until_ns:
                     self._holding = False
@@ -957,9 +969,10 @@ class RangeFilter:
         the fast average starts again from the samples' median, counted as that many
         readings, and the first track runs again over the readings it took with the
         new reading variance (``_refilter``); where it cannot (a run of outliers
-        pending, or the boot outlasted ``stale_after_s``), its covariance, built with
-        the prior's variance, is scaled to the new one. ``s2`` is S^2 of the reading
-        and ``t_state`` (ns) the time the track stands at, the last frame's."""
+        pending, or the boot outlasted ``stale_after_s`` or ``BOOT_TRACK_READINGS``),
+        its covariance, built with the prior's variance, is scaled to the new one.
+        ``s2`` is S^2 of the reading and ``t_state`` (ns) the time the track stands
+        at, the last frame's."""
         boot = self._boot
         if boot is not None:
             boot.append(y)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import random
+import tracemalloc
 
 import pytest
 
@@ -778,6 +779,29 @@ def test_the_first_track_is_run_again_with_the_noise_the_boot_measured() -> None
                 sq += (e.range_m - 3.0) ** 2
     assert sorted(speeds)[50] < 1.4
     assert math.sqrt(sq / published) < 0.041
+
+
+def test_readings_too_sparse_to_measure_the_noise_keep_no_memory() -> None:
+    """A beam that finds a surface once every 0.6 s (each reading a stale restart, no
+    two close enough for a second difference): the boot never ends, and the readings
+    kept for the first track's run again stop at stale_after_s, so 100,000 frames of it
+    (400 s) leave the filter's memory where it was."""
+    flt = RangeFilter()
+
+    def frames(first: int, n: int) -> None:
+        for k in range(first, first + n):
+            z = 3.0 if k % 150 == 0 else None
+            flt.step(z, 1500 if z is not None else 50, k * FRAME_NS)
+
+    frames(0, 5000)
+    tracemalloc.start()
+    try:
+        before, _ = tracemalloc.get_traced_memory()
+        frames(5000, 100_000)
+        after, _ = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert after - before < 1024
 
 
 def test_a_first_track_too_noisy_to_use_is_held_back_until_it_is_not() -> None:
