@@ -888,7 +888,6 @@ class RangeFilter:
             if not reasons:
                 if t >= self._boot_until_ns:
                     self._holding = False
-                    self._boot_track = None
                 elif self._boot is not None or self.p00 > self._unrel2:
                     reasons = _WEAK_STALE if marginal else _STALE
         if not reasons and self.active:
