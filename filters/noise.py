@@ -149,7 +149,8 @@ meanwhile counted its first readings as some twenty later ones each. ``lunad eva
 the track run again: 22 and 74 targets missed against 23 and 78 (RMSE against the
 oracle 5 and 20 against 8 and 23), with a 5-sigma miss at 0.58 % on room_sweep in the
 shot world among the 22; 7 and 11 samples missed 23 and 76, 23 and 73; without the
-scaling of the covariance, 25 and 79. Until the boot ends the estimate is not
+scaling of the covariance, 25 and 79. With the track run again, seeds 900-939: 7 and 13
+samples missed 330 and 320 against 315. Until the boot ends the estimate is not
 published (range_filter.py; docs/filter.md section 3 has the figures)."""
 NORMAL_MEDIAN_ABS = 0.6744897501960817
 """The median of |Z| for standard normal Z (sqrt(2) erfinv(1/2)): the median absolute
