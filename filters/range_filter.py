@@ -312,6 +312,18 @@ def _cv_predicted(
     )
 
 
+def _cv_updated(
+    x: float, v: float, p00: float, p01: float, p11: float, e: float, sp: float, r: float
+) -> tuple[float, float, float, float, float]:
+    """The constant-velocity track ``x``, ``v`` (metres, m/s) with predicted covariance
+    ``p00``, ``p01``, ``p11`` updated by a reading ``e`` (metres) off its prediction, of
+    variance ``r`` (m^2), ``sp`` = p00 + r: the new x, v, p00, p01, p11 (p00 r / sp for
+    p00 - k0 p00, and so on). The accepted reading's step inlines the same lines."""
+    k0 = p00 / sp
+    k1 = p01 / sp
+    return x + k0 * e, v + k1 * e, k0 * r, k1 * r, p11 - k1 * p01
+
+
 class RangeFilter:
     """Turns raw readings into published estimates; pure, one call per frame.
 
@@ -1043,13 +1055,7 @@ class RangeFilter:
                     hold = self._hold_frames
                 continue
             out = 0
-            k0 = p00 / sp
-            k1 = p01 / sp
-            x += k0 * e
-            v += k1 * e
-            p11 -= k1 * p01
-            p00 = k0 * r
-            p01 = k1 * r
+            x, v, p00, p01, p11 = _cv_updated(x, v, p00, p01, p11, e, sp, r)
             if hold:
                 hold -= 1
         if t_state is not None and t_state > t_prev:
@@ -1222,13 +1228,9 @@ class RangeFilter:
             return False
         self._sh_llr = llr
         self._sh_left = left
-        k0 = p00 / ss
-        k1 = p01 / ss
-        self._sh_x = x + k0 * es
-        self._sh_v += k1 * es
-        self._sh_p00 = k0 * r
-        self._sh_p01 = k1 * r
-        self._sh_p11 = p11 - k1 * p01
+        self._sh_x, self._sh_v, self._sh_p00, self._sh_p01, self._sh_p11 = _cv_updated(
+            x, self._sh_v, p00, p01, p11, es, ss, r
+        )
         return False
 
     def _settle(self, t_ns: int, r_m2: float, dt_s: float) -> None:
