@@ -76,8 +76,10 @@ from __future__ import annotations
 import math
 import random
 import time
+from collections import Counter
 from collections.abc import Iterable, Sequence
-from dataclasses import asdict, dataclass
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass, fields
 from typing import Protocol
 
 from lunad.filters import FilterConfig, RangeFilter, Status
@@ -199,12 +201,15 @@ class EvalReport:
         scenarios: one result per scenario, world and seed.
         step_cost_us: mean cost of one RangeFilter.step, microseconds.
         true_noise: whether lunad was told each reading's true sigma (a diagnostic).
+        filter_settings: lunad's FilterConfig fields that differ from the defaults
+            (empty: the daemon's defaults were judged).
     """
 
     noise_scale: float
     scenarios: tuple[ScenarioResult, ...]
     step_cost_us: float
     true_noise: bool = False
+    filter_settings: tuple[tuple[str, float | int], ...] = ()
 
     def to_dict(self) -> dict[str, object]:
         """Plain data for JSON."""
@@ -587,6 +592,28 @@ def step_cost_us(run: Run, config: FilterConfig | None = None, repeat: int = 3) 
     return best / 1000.0
 
 
+def _evaluate_one(
+    job: tuple[Scenario, str, int, float, FilterConfig | None, bool],
+) -> ScenarioResult:
+    """One run of ``evaluate_all``: simulate, then score every method. At module level so
+    that a worker process can be handed it."""
+    scenario, world, seed, noise_scale, config, true_noise = job
+    run = simulate(scenario, world, noise_scale, seed)
+    return evaluate_run(scenario, run, world, seed, config, true_noise)
+
+
+def _changed_settings(config: FilterConfig | None) -> tuple[tuple[str, float | int], ...]:
+    """The fields of ``config`` that differ from ``FilterConfig()``, in field order."""
+    if config is None:
+        return ()
+    default = FilterConfig()
+    return tuple(
+        (f.name, getattr(config, f.name))
+        for f in fields(FilterConfig)
+        if getattr(config, f.name) != getattr(default, f.name)
+    )
+
+
 def evaluate_all(
     scenarios: Iterable[Scenario],
     worlds: Sequence[str] = WORLDS,
@@ -594,20 +621,33 @@ def evaluate_all(
     noise_scale: float = 1.0,
     config: FilterConfig | None = None,
     true_noise: bool = False,
+    jobs: int = 1,
 ) -> EvalReport:
     """Evaluate every scenario in every world at every seed; time RangeFilter.step on
-    the longest run. With ``true_noise``, lunad is told each reading's true sigma."""
-    results = []
-    longest: Run | None = None
-    for sc in scenarios:
-        for world in worlds:
-            for seed in seeds:
-                run = simulate(sc, world, noise_scale, seed)
-                results.append(evaluate_run(sc, run, world, seed, config, true_noise))
-                if longest is None or len(run.t_ns) > len(longest.t_ns):
-                    longest = run
-    cost = step_cost_us(longest, config) if longest is not None else 0.0
-    return EvalReport(noise_scale, tuple(results), cost, true_noise)
+    the longest run. With ``true_noise``, lunad is told each reading's true sigma.
+
+    ``jobs`` worker processes share the runs (each run is drawn from its own seed, so
+    the results are the same whatever their number, in the same order); the step's
+    cost is timed in this process, alone."""
+    runs = [
+        (sc, world, seed, noise_scale, config, true_noise)
+        for sc in scenarios
+        for world in worlds
+        for seed in seeds
+    ]
+    if jobs > 1 and len(runs) > 1:
+        workers = min(jobs, len(runs))
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            chunk = max(1, len(runs) // (4 * workers))
+            results = list(pool.map(_evaluate_one, runs, chunksize=chunk))
+    else:
+        results = [_evaluate_one(job) for job in runs]
+    cost = 0.0
+    if results:
+        longest = max(range(len(results)), key=lambda i: (results[i].n_frames, -i))
+        sc, world, seed = runs[longest][:3]
+        cost = step_cost_us(simulate(sc, world, noise_scale, seed), config)
+    return EvalReport(noise_scale, tuple(results), cost, true_noise, _changed_settings(config))
 
 
 @dataclass(frozen=True, slots=True)
@@ -630,75 +670,176 @@ class Targets:
     lux_ok: float = 0.95
 
 
-def check_targets(result: ScenarioResult, targets: Targets | None = None) -> list[str]:
-    """Targets lunad misses on one run, as sentences (empty: all met)."""
+MISS_KINDS = {
+    "nothing": "nothing published",
+    "rmse_oracle": "RMSE against the oracle",
+    "rmse_median5": "RMSE against median5",
+    "two_sigma": "2-sigma coverage",
+    "five_sigma": "beyond 5 sigma",
+    "bad_outputs": "bad outputs",
+    "step_lag": "step lag",
+    "edge_ok": "edge readings published ok",
+    "lux": "lux",
+}
+"""The kinds of target a run can miss, and how the summary names them."""
+
+
+@dataclass(frozen=True, slots=True)
+class Miss:
+    """One target lunad missed on one run.
+
+    Attributes:
+        kind: one of ``MISS_KINDS``.
+        text: the sentence ``lunad eval`` prints.
+        oracle_too: the oracle misses it too: its own 2-sigma coverage strays from
+            the band as lunad's does, or its lux, read in hindsight, says that the
+            readings of this run do not hold the light to the target's precision.
+    """
+
+    kind: str
+    text: str
+    oracle_too: bool = False
+
+
+def target_misses(result: ScenarioResult, targets: Targets | None = None) -> list[Miss]:
+    """Targets lunad misses on one run (empty: all met)."""
     tg = targets or Targets()
     mine = result.get("lunad")
     name = f"{result.scenario}/{result.world}/seed {result.seed}"
     if mine.rmse_m is None:
-        return [f"{name}: lunad published nothing away from steps"]
-    misses: list[str] = []
+        return [Miss("nothing", f"{name}: lunad published nothing away from steps")]
+    misses: list[Miss] = []
     if result.vs_oracle is not None and result.vs_oracle > tg.oracle_ratio:
-        misses.append(f"{name}: RMSE {result.vs_oracle:.2f} x the oracle's > {tg.oracle_ratio}")
+        misses.append(
+            Miss(
+                "rmse_oracle",
+                f"{name}: RMSE {result.vs_oracle:.2f} x the oracle's > {tg.oracle_ratio}",
+            )
+        )
     if result.vs_median5 is not None and result.vs_median5 >= 1.0:
-        misses.append(f"{name}: RMSE {result.vs_median5:.2f} x median5's, not below it")
+        misses.append(
+            Miss("rmse_median5", f"{name}: RMSE {result.vs_median5:.2f} x median5's, not below it")
+        )
     if mine.two_sigma is not None and not tg.two_sigma_lo <= mine.two_sigma <= tg.two_sigma_hi:
         theirs = result.get("oracle").two_sigma
-        why = (
-            f" (the oracle's own: {theirs:.1%})"
-            if theirs is not None and not tg.two_sigma_lo <= theirs <= tg.two_sigma_hi
-            else ""
-        )
+        too = theirs is not None and not tg.two_sigma_lo <= theirs <= tg.two_sigma_hi
+        why = f" (the oracle's own: {theirs:.1%})" if too and theirs is not None else ""
         misses.append(
-            f"{name}: 2-sigma coverage {mine.two_sigma:.1%} outside "
-            f"[{tg.two_sigma_lo:.0%}, {tg.two_sigma_hi:.0%}]{why}"
+            Miss(
+                "two_sigma",
+                f"{name}: 2-sigma coverage {mine.two_sigma:.1%} outside "
+                f"[{tg.two_sigma_lo:.0%}, {tg.two_sigma_hi:.0%}]{why}",
+                too,
+            )
         )
     if mine.five_sigma is not None and mine.five_sigma >= tg.five_sigma:
         misses.append(
-            f"{name}: {mine.five_sigma:.2%} of estimates beyond 5 sigma >= {tg.five_sigma:.1%}"
+            Miss(
+                "five_sigma",
+                f"{name}: {mine.five_sigma:.2%} of estimates beyond 5 sigma >= {tg.five_sigma:.1%}",
+            )
         )
     if mine.bad_frames:
         misses.append(
-            f"{name}: {mine.bad_frames} usable outputs more than {BAD_ERROR_M:g} m off "
-            f"beyond {STEP_GRACE_FRAMES} frames after a step"
+            Miss(
+                "bad_outputs",
+                f"{name}: {mine.bad_frames} usable outputs more than {BAD_ERROR_M:g} m off "
+                f"beyond {STEP_GRACE_FRAMES} frames after a step",
+            )
         )
     if mine.step_lag_frames is not None and mine.step_lag_frames > tg.step_lag_frames:
-        misses.append(f"{name}: step lag {mine.step_lag_frames} frames > {tg.step_lag_frames}")
+        misses.append(
+            Miss(
+                "step_lag",
+                f"{name}: step lag {mine.step_lag_frames} frames > {tg.step_lag_frames}",
+            )
+        )
     if result.mixed_ok:
         misses.append(
-            f"{name}: {result.mixed_ok} of {result.mixed_frames} readings of two surfaces "
-            "at an edge published ok"
+            Miss(
+                "edge_ok",
+                f"{name}: {result.mixed_ok} of {result.mixed_frames} readings of two surfaces "
+                "at an edge published ok",
+            )
         )
     if mine.lux_ok is not None and mine.lux_ok < tg.lux_ok:
         hind = result.get("oracle").lux_ok
-        why = (
-            f" (the oracle's, read in hindsight: {hind:.1%})"
-            if hind is not None and hind < tg.lux_ok
-            else ""
-        )
+        too = hind is not None and hind < tg.lux_ok
+        why = f" (the oracle's, read in hindsight: {hind:.1%})" if too and hind is not None else ""
         misses.append(
-            f"{name}: lux within {LUX_REL_TOL:.0%} or {LUX_ABS_TOL_LUX / 1000:g} klux on "
-            f"{mine.lux_ok:.1%} of settled frames < {tg.lux_ok:.0%}{why}"
+            Miss(
+                "lux",
+                f"{name}: lux within {LUX_REL_TOL:.0%} or {LUX_ABS_TOL_LUX / 1000:g} klux on "
+                f"{mine.lux_ok:.1%} of settled frames < {tg.lux_ok:.0%}{why}",
+                too,
+            )
         )
     return misses
+
+
+def check_targets(result: ScenarioResult, targets: Targets | None = None) -> list[str]:
+    """Targets lunad misses on one run, as sentences (empty: all met)."""
+    return [m.text for m in target_misses(result, targets)]
 
 
 def _fmt(v: float | None, scale: float = 1.0, digits: int = 2) -> str:
     return "-" if v is None else f"{v * scale:.{digits}f}"
 
 
-def format_table(report: EvalReport, targets: Targets | None = None) -> str:
-    """The human-readable report ``lunad eval`` prints: one line per run and method."""
+def _conditions(report: EvalReport) -> str:
+    """The noise factor, whether lunad was told the noise, and its filter settings."""
     told = (
         "; lunad told each reading's true sigma, as the oracle is (a diagnostic)"
         if report.true_noise
         else ""
     )
+    settings = ", ".join(f"{k}={v:g}" for k, v in report.filter_settings) or "defaults"
+    return f"noise x{report.noise_scale:g}{told}; lunad's filter: {settings}"
+
+
+def format_summary(report: EvalReport, targets: Targets | None = None) -> str:
+    """The tally ``lunad eval --summary`` prints: the targets missed by kind, and by
+    scenario and world, without a line per run (a comparison of two filters wants
+    hundreds of seeds: docs/filter.md, "Seeds beyond the three")."""
+    results = report.scenarios
+    seeds = {r.seed for r in results}
+    names = list(dict.fromkeys(r.scenario for r in results))
+    worlds = list(dict.fromkeys(r.world for r in results))
+    per_run = [target_misses(r, targets) for r in results]
+    every = [m for ms in per_run for m in ms]
     lines = [
-        f"lunad eval: worlds paper and shot (sim/evaluate.py), noise x{report.noise_scale:g}"
-        + told,
-        "",
+        f"lunad eval: {len(results)} runs ({len(names)} scenarios x {len(worlds)} worlds x "
+        f"{len(seeds)} seeds), {_conditions(report)}",
+        f"RangeFilter.step: {report.step_cost_us:.2f} us per frame (this machine)",
     ]
+    if not results:
+        return "\n".join(lines)
+    kinds = Counter(m.kind for m in every)
+    too = Counter(m.kind for m in every if m.oracle_too)
+    lines.append(
+        f"targets missed: {len(every)}, {24 * len(every) / len(results):.1f} per 24 runs"
+        f" ({sum(too.values())} of them where the oracle misses too)"
+    )
+    for kind, label in MISS_KINDS.items():
+        if kinds[kind]:
+            also = f" ({too[kind]} where the oracle misses too)" if too[kind] else ""
+            lines.append(f"  {label:<27} {kinds[kind]:>6}{also}")
+    lines.append("targets missed / runs, by scenario and world:")
+    missed: Counter[tuple[str, str]] = Counter()
+    runs: Counter[tuple[str, str]] = Counter()
+    for r, ms in zip(results, per_run, strict=True):
+        missed[r.scenario, r.world] += len(ms)
+        runs[r.scenario, r.world] += 1
+    width = max(len(n) for n in names)
+    for name in names:
+        cells = (f"{w} {missed[name, w]:>5} / {runs[name, w]:<5}" for w in worlds)
+        lines.append(f"  {name:<{width}}  " + "  ".join(cells).rstrip())
+    return "\n".join(lines)
+
+
+def format_table(report: EvalReport, targets: Targets | None = None) -> str:
+    """The human-readable report ``lunad eval`` prints: one line per run and method."""
+    lines = [f"lunad eval: worlds paper and shot (sim/evaluate.py), {_conditions(report)}", ""]
     head = (
         f"{'method':<8} {'rmse_cm':>8} {'cover_%':>8} {'2sig_%':>7} {'5sig_%':>7} "
         f"{'bad':>4} {'lag_fr':>6} {'lux_ok%':>7} {'luxnull%':>8}"

@@ -225,3 +225,83 @@ def test_cli_true_noise_is_said_and_tells_lunad_the_noise(
     told = ev.evaluate_run(scenario, run, "paper", 7, true_noise=True).vs_oracle
     assert learnt is not None and told is not None
     assert told < learnt - 0.5
+
+
+def test_cli_seed_ranges(capsys: pytest.CaptureFixture[str]) -> None:
+    argv = ["--scenario", "static", "--duration", "0.5", "--format", "json", "--world", "paper"]
+    assert run_cli([*argv, "--seed", "3-5", "--seed", "1", "--seed", "4"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert [s["seed"] for s in doc["scenarios"]] == [3, 4, 5, 1]
+    for bad in ("5-3", "-1", "a-b", "1-", "0-10000"):
+        with pytest.raises(SystemExit):
+            run_cli(["--seed", bad])
+
+
+def test_worker_processes_give_the_same_results() -> None:
+    """``--jobs``: each run is drawn from its own seed, so real worker processes give
+    the results one process does, in the same order."""
+    scenarios = [load_scenario(n).with_duration(1.0) for n in ("static", "obstacles")]
+    alone = ev.evaluate_all(scenarios, ev.WORLDS, (0, 1))
+    shared = ev.evaluate_all(scenarios, ev.WORLDS, (0, 1), jobs=2)
+    assert shared.scenarios == alone.scenarios
+    assert [(r.scenario, r.world, r.seed) for r in shared.scenarios][:3] == [
+        ("static", "paper", 0),
+        ("static", "paper", 1),
+        ("static", "shot", 0),
+    ]
+
+
+def test_cli_judges_other_filter_settings(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+) -> None:
+    """``--set`` and ``--config`` judge lunad's filter with other [filter] settings, and
+    the report says which; a wrong name or value is a config error that names it."""
+    argv = ["--scenario", "static", "--duration", "2", "--world", "paper", "--format", "json"]
+    assert run_cli(argv) == 0
+    default = json.loads(capsys.readouterr().out)
+    assert default["filter_settings"] == []
+    assert run_cli([*argv, "--set", "sigma_floor_m=0.05", "--set", "step_confirm=3"]) == 0
+    wide = json.loads(capsys.readouterr().out)
+    assert wide["filter_settings"] == [["step_confirm", 3], ["sigma_floor_m", 0.05]]
+    lunad = next(m for m in wide["scenarios"][0]["methods"] if m["method"] == "lunad")
+    assert lunad["two_sigma"] == 1.0  # a 5 cm floor under a sigma of millimetres
+    path = tmp_path / "lunad.toml"
+    path.write_text("[filter]\nsigma_floor_m = 0.05\n", encoding="utf-8")
+    assert run_cli([*argv, "--config", str(path), "--set", "step_confirm=3"]) == 0
+    from_file = json.loads(capsys.readouterr().out)
+    timed = "step_cost_us"  # the machine's, run to run
+    assert {k: v for k, v in from_file.items() if k != timed} == {
+        k: v for k, v in wide.items() if k != timed
+    }
+    assert run_cli([*argv[:-2], "--set", "gate_sigmas=4.5"]) == 0
+    assert "lunad's filter: gate_sigmas=4.5" in capsys.readouterr().out
+    assert run_cli(["--set", "nope=1"]) == cmd_eval.EXIT_CONFIG
+    assert "filter.nope: unknown key" in caplog.text
+    assert run_cli(["--set", "gate_sigmas=-1"]) == cmd_eval.EXIT_CONFIG
+    assert "gate_sigmas must be positive" in caplog.text
+    for bad in ("gate_sigmas", "=4", "gate_sigmas=abc"):
+        with pytest.raises(SystemExit):
+            run_cli(["--set", bad])
+
+
+def test_the_summary_tallies_every_miss(capsys: pytest.CaptureFixture[str]) -> None:
+    """``--summary``: the targets missed by kind and by scenario and world, each one
+    counted once, and the runs where the oracle misses too."""
+    scenarios = [load_scenario(n).with_duration(3.0) for n in ("cloud_flicker", "static")]
+    report = ev.evaluate_all(scenarios, ev.WORLDS, (0, 1))
+    misses = [m for r in report.scenarios for m in ev.target_misses(r)]
+    assert misses, "cloud_flicker's first 3 s miss lux targets"
+    assert [m.text for m in misses] == [t for r in report.scenarios for t in ev.check_targets(r)]
+    text = ev.format_summary(report)
+    assert f"targets missed: {len(misses)}," in text
+    assert f"({sum(m.oracle_too for m in misses)} of them where the oracle misses too)" in text
+    by_kind = [line for line in text.splitlines() if line.startswith("  ") and "/" not in line]
+    assert sum(int(line[29:36]) for line in by_kind) == len(misses)
+    rows = [line for line in text.splitlines() if line.startswith("  ") and "/" in line]
+    assert [line.split()[0] for line in rows] == ["cloud_flicker", "static"]
+    counted = sum(int(cell) for line in rows for cell in line.split()[2::4])
+    assert counted == len(misses)
+    argv = ["--scenario", "static", "--duration", "1", "--summary"]
+    assert run_cli(argv) == 0
+    assert "2 runs (1 scenarios x 2 worlds x 1 seeds)" in capsys.readouterr().out
+    assert run_cli([*argv, "--format", "json"]) == cmd_eval.EXIT_CONFIG
