@@ -65,12 +65,12 @@ examples:
   lunad eval --true-noise --scenario cloud_flicker
                                               lunad told the true noise: what it still loses
                                               to the oracle is its tracker's
-  lunad eval --seed 1260-1419 --jobs 2 --summary
+  lunad eval --seed 100-259 --jobs 2 --summary
                                               160 seeds (3840 runs) on two CPUs, the targets
                                               missed tallied by kind, scenario and world
-  lunad eval --seed 1260-1419 --jobs 2 --summary --set gate_sigmas=4.5
+  lunad eval --seed 100-259 --jobs 2 --summary --set gate_sigmas=4.5
                                               the same runs with one filter setting changed
-  lunad eval --config /etc/lunad/lunad.toml   the [filter] settings of a config file
+  lunad eval --config /etc/lunad/front.toml   the [filter] settings of a config file
 
 Comparing two filters: run both on the same seeds, 100 or more of them. On 40 seeds
 (960 runs) one change missed 18 targets fewer on one block of seeds and 11 more on the
