@@ -706,73 +706,56 @@ def target_misses(result: ScenarioResult, targets: Targets | None = None) -> lis
     tg = targets or Targets()
     mine = result.get("lunad")
     name = f"{result.scenario}/{result.world}/seed {result.seed}"
-    if mine.rmse_m is None:
-        return [Miss("nothing", f"{name}: lunad published nothing away from steps")]
     misses: list[Miss] = []
+
+    def miss(kind: str, text: str, oracle_too: bool = False) -> None:
+        misses.append(Miss(kind, f"{name}: {text}", oracle_too))
+
+    if mine.rmse_m is None:
+        miss("nothing", "lunad published nothing away from steps")
+        return misses
     if result.vs_oracle is not None and result.vs_oracle > tg.oracle_ratio:
-        misses.append(
-            Miss(
-                "rmse_oracle",
-                f"{name}: RMSE {result.vs_oracle:.2f} x the oracle's > {tg.oracle_ratio}",
-            )
-        )
+        miss("rmse_oracle", f"RMSE {result.vs_oracle:.2f} x the oracle's > {tg.oracle_ratio}")
     if result.vs_median5 is not None and result.vs_median5 >= 1.0:
-        misses.append(
-            Miss("rmse_median5", f"{name}: RMSE {result.vs_median5:.2f} x median5's, not below it")
-        )
+        miss("rmse_median5", f"RMSE {result.vs_median5:.2f} x median5's, not below it")
     if mine.two_sigma is not None and not tg.two_sigma_lo <= mine.two_sigma <= tg.two_sigma_hi:
         theirs = result.get("oracle").two_sigma
         too = theirs is not None and not tg.two_sigma_lo <= theirs <= tg.two_sigma_hi
         why = f" (the oracle's own: {theirs:.1%})" if too and theirs is not None else ""
-        misses.append(
-            Miss(
-                "two_sigma",
-                f"{name}: 2-sigma coverage {mine.two_sigma:.1%} outside "
-                f"[{tg.two_sigma_lo:.0%}, {tg.two_sigma_hi:.0%}]{why}",
-                too,
-            )
+        miss(
+            "two_sigma",
+            f"2-sigma coverage {mine.two_sigma:.1%} outside "
+            f"[{tg.two_sigma_lo:.0%}, {tg.two_sigma_hi:.0%}]{why}",
+            too,
         )
     if mine.five_sigma is not None and mine.five_sigma >= tg.five_sigma:
-        misses.append(
-            Miss(
-                "five_sigma",
-                f"{name}: {mine.five_sigma:.2%} of estimates beyond 5 sigma >= {tg.five_sigma:.1%}",
-            )
+        miss(
+            "five_sigma",
+            f"{mine.five_sigma:.2%} of estimates beyond 5 sigma >= {tg.five_sigma:.1%}",
         )
     if mine.bad_frames:
-        misses.append(
-            Miss(
-                "bad_outputs",
-                f"{name}: {mine.bad_frames} usable outputs more than {BAD_ERROR_M:g} m off "
-                f"beyond {STEP_GRACE_FRAMES} frames after a step",
-            )
+        miss(
+            "bad_outputs",
+            f"{mine.bad_frames} usable outputs more than {BAD_ERROR_M:g} m off "
+            f"beyond {STEP_GRACE_FRAMES} frames after a step",
         )
     if mine.step_lag_frames is not None and mine.step_lag_frames > tg.step_lag_frames:
-        misses.append(
-            Miss(
-                "step_lag",
-                f"{name}: step lag {mine.step_lag_frames} frames > {tg.step_lag_frames}",
-            )
-        )
+        miss("step_lag", f"step lag {mine.step_lag_frames} frames > {tg.step_lag_frames}")
     if result.mixed_ok:
-        misses.append(
-            Miss(
-                "edge_ok",
-                f"{name}: {result.mixed_ok} of {result.mixed_frames} readings of two surfaces "
-                "at an edge published ok",
-            )
+        miss(
+            "edge_ok",
+            f"{result.mixed_ok} of {result.mixed_frames} readings of two surfaces "
+            "at an edge published ok",
         )
     if mine.lux_ok is not None and mine.lux_ok < tg.lux_ok:
         hind = result.get("oracle").lux_ok
         too = hind is not None and hind < tg.lux_ok
         why = f" (the oracle's, read in hindsight: {hind:.1%})" if too and hind is not None else ""
-        misses.append(
-            Miss(
-                "lux",
-                f"{name}: lux within {LUX_REL_TOL:.0%} or {LUX_ABS_TOL_LUX / 1000:g} klux on "
-                f"{mine.lux_ok:.1%} of settled frames < {tg.lux_ok:.0%}{why}",
-                too,
-            )
+        miss(
+            "lux",
+            f"lux within {LUX_REL_TOL:.0%} or {LUX_ABS_TOL_LUX / 1000:g} klux on "
+            f"{mine.lux_ok:.1%} of settled frames < {tg.lux_ok:.0%}{why}",
+            too,
         )
     return misses
 
