@@ -807,16 +807,29 @@ def format_summary(report: EvalReport, targets: Targets | None = None) -> str:
         if kinds[kind]:
             also = f" ({too[kind]} where the oracle misses too)" if too[kind] else ""
             lines.append(f"  {label:<27} {kinds[kind]:>6}{also}")
-    lines.append("targets missed / runs, by scenario and world:")
-    missed: Counter[tuple[str, str]] = Counter()
+    shown = [kind for kind in MISS_KINDS if kinds[kind]]
+    lines.append(
+        "targets missed by scenario and world (oracle_too: of them, where the oracle"
+        " misses too), and by kind:"
+    )
+    by_run: Counter[tuple[str, str, str]] = Counter()
     runs: Counter[tuple[str, str]] = Counter()
     for r, ms in zip(results, per_run, strict=True):
-        missed[r.scenario, r.world] += len(ms)
         runs[r.scenario, r.world] += 1
-    width = max(len(n) for n in names)
+        for m in ms:
+            by_run[r.scenario, r.world, m.kind] += 1
+            by_run[r.scenario, r.world, "missed"] += 1
+            by_run[r.scenario, r.world, "oracle_too"] += m.oracle_too
+    width = max(len(n) for n in (*names, "scenario"))
+    columns = ["missed", "oracle_too", *shown]
+    lines.append(
+        f"  {'scenario':<{width}} {'world':<5} {'runs':>5} "
+        + " ".join(f"{c:>{max(len(c), 4)}}" for c in columns)
+    )
     for name in names:
-        cells = (f"{w} {missed[name, w]:>5} / {runs[name, w]:<5}" for w in worlds)
-        lines.append(f"  {name:<{width}}  " + "  ".join(cells).rstrip())
+        for w in worlds:
+            cells = (f"{by_run[name, w, c]:>{max(len(c), 4)}}" for c in columns)
+            lines.append(f"  {name:<{width}} {w:<5} {runs[name, w]:>5} " + " ".join(cells))
     return "\n".join(lines)
 
 

@@ -43,8 +43,10 @@ def test_the_oracle_beats_a_filter_it_shares_nothing_with() -> None:
     for world in ev.WORLDS:
         res = ev.evaluate(sc, world, 1.0, 3)
         oracle = res.get("oracle").rmse_m
-        assert oracle is not None
-        assert oracle < res.get("median5").rmse_m < res.get("raw").rmse_m
+        median = res.get("median5").rmse_m
+        raw = res.get("raw").rmse_m
+        assert oracle is not None and median is not None and raw is not None
+        assert oracle < median < raw
 
 
 def test_the_targets_can_fail() -> None:
@@ -275,6 +277,8 @@ def test_cli_judges_other_filter_settings(
     }
     assert run_cli([*argv[:-2], "--set", "gate_sigmas=4.5"]) == 0
     assert "lunad's filter: gate_sigmas=4.5" in capsys.readouterr().out
+    assert run_cli([*argv[:-2], "--set", "filter.gate_sigmas=4.5"]) == 0
+    assert "lunad's filter: gate_sigmas=4.5" in capsys.readouterr().out
     assert run_cli(["--set", "nope=1"]) == cmd_eval.EXIT_CONFIG
     assert "filter.nope: unknown key" in caplog.text
     assert run_cli(["--set", "gate_sigmas=-1"]) == cmd_eval.EXIT_CONFIG
@@ -295,12 +299,23 @@ def test_the_summary_tallies_every_miss(capsys: pytest.CaptureFixture[str]) -> N
     text = ev.format_summary(report)
     assert f"targets missed: {len(misses)}," in text
     assert f"({sum(m.oracle_too for m in misses)} of them where the oracle misses too)" in text
-    by_kind = [line for line in text.splitlines() if line.startswith("  ") and "/" not in line]
+    tally, _, table = text.partition("targets missed by scenario and world")
+    by_kind = [line for line in tally.splitlines() if line.startswith("  ")]
     assert sum(int(line[29:36]) for line in by_kind) == len(misses)
-    rows = [line for line in text.splitlines() if line.startswith("  ") and "/" in line]
-    assert [line.split()[0] for line in rows] == ["cloud_flicker", "static"]
-    counted = sum(int(cell) for line in rows for cell in line.split()[2::4])
-    assert counted == len(misses)
+    head, *rows = [line.split() for line in table.splitlines()[1:]]
+    assert [(row[0], row[1]) for row in rows] == [
+        (name, world) for name in ("cloud_flicker", "static") for world in ev.WORLDS
+    ]
+    assert all(row[2] == "2" for row in rows), "two seeds a scenario and world"
+    column = {name: i for i, name in enumerate(head)}
+    assert sum(int(row[column["missed"]]) for row in rows) == len(misses)
+    assert sum(int(row[column["oracle_too"]]) for row in rows) == sum(m.oracle_too for m in misses)
+    for kind in {m.kind for m in misses}:
+        counted = sum(int(row[column[kind]]) for row in rows)
+        assert counted == sum(m.kind == kind for m in misses), kind
+    for row in rows:
+        kinds = sum(int(row[column[k]]) for k in ev.MISS_KINDS if k in column)
+        assert kinds == int(row[column["missed"]])
     argv = ["--scenario", "static", "--duration", "1", "--summary"]
     assert run_cli(argv) == 0
     assert "2 runs (1 scenarios x 2 worlds x 1 seeds)" in capsys.readouterr().out

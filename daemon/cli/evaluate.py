@@ -120,9 +120,10 @@ def _jobs(text: str) -> int:
 
 
 def _setting(text: str) -> tuple[str, Any]:
-    """``FIELD=VALUE``: a FilterConfig field and a TOML value (a number, true, false)."""
+    """``FIELD=VALUE``: a FilterConfig field and a TOML value (a number, true, false).
+    FIELD may be spelt as in a config file's ``[filter]`` table or as ``filter.FIELD``."""
     name, eq, value = text.partition("=")
-    name = name.strip()
+    name = name.strip().removeprefix("filter.")
     if not eq or not name:
         raise argparse.ArgumentTypeError(f"expected FIELD=VALUE, got {text!r}")
     try:
@@ -201,7 +202,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
         action="append",
         metavar="FIELD=VALUE",
         help="judge lunad's filter with this [filter] setting changed (FilterConfig's"
-        " names and units, as in the config file); repeatable",
+        " names and units, as in the config file; filter.FIELD too); repeatable",
     )
     p.add_argument(
         "--true-noise",
