@@ -24,11 +24,11 @@ test: $(STAMP) typecheck
 	$(VENV)/bin/ruff check protocol filters sim daemon tests
 	$(VENV)/bin/python -m pytest
 
-## typecheck: mypy over the four packages, through links that give them their import names
+## typecheck: mypy over the four packages (through links that give them their import names) and tests/
 typecheck: $(STAMP)
 	rm -rf build/typecheck && mkdir -p build/typecheck/lunad
 	for p in protocol filters sim daemon; do ln -s ../../../$$p build/typecheck/lunad/$$p; done
-	$(VENV)/bin/mypy build/typecheck/lunad
+	$(VENV)/bin/mypy build/typecheck/lunad tests
 
 ## install: as root, install the systemd service (venv in $(PREFIX), lunad@.service); DESTDIR= stages
 install:

@@ -160,7 +160,7 @@ def start_daemon(tmp_path: Path) -> Iterator[Callable[..., DaemonProc]]:
 
 
 @pytest.fixture
-def device(tmp_path: Path) -> Callable[..., PtyDevice]:
+def device(tmp_path: Path) -> Iterator[Callable[..., PtyDevice]]:
     """Factory for a started virtual sensor behind ``tmp_path/tfluna``; closed after the test."""
     made: list[PtyDevice] = []
 
@@ -170,7 +170,7 @@ def device(tmp_path: Path) -> Callable[..., PtyDevice]:
         made.append(dev)
         return dev
 
-    yield make  # type: ignore[misc]
+    yield make
     errors = []
     for dev in made:
         try:

@@ -14,7 +14,7 @@ import re
 import shutil
 import subprocess
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import pytest
 
@@ -24,7 +24,14 @@ from lunad.daemon.tools.bench import filter_cost
 
 pytestmark = pytest.mark.skipif(shutil.which("git") is None, reason="needs git")
 
-QUICK = {"passes": 1, "max_frames": 300, "trace_frames": 100}
+
+class _Quick(TypedDict):
+    passes: int
+    max_frames: int
+    trace_frames: int
+
+
+QUICK: _Quick = {"passes": 1, "max_frames": 300, "trace_frames": 100}
 """Small enough for a few seconds a comparison."""
 
 

@@ -3,6 +3,7 @@ across a command's output modes do so in each."""
 
 from __future__ import annotations
 
+import argparse
 import json
 import subprocess
 import sys
@@ -16,7 +17,14 @@ from lunad.protocol.client import Subscriber
 from lunad.sim.pty_device import PtyDevice
 
 LUNAD = [sys.executable, "-m", "lunad.daemon.cli"]
-COMMANDS = sorted(build_parser()._subparsers._group_actions[0].choices)  # type: ignore[union-attr]
+
+
+def _command_names() -> list[str]:
+    (commands,) = [a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)]
+    return sorted(commands.choices)
+
+
+COMMANDS = _command_names()
 
 
 def test_every_command_module_is_installed() -> None:

@@ -3,6 +3,8 @@ through the virtual sensor and the parser, like h11's ConnectionPair."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import pytest
 
 from lunad.protocol import CommandReply, FrameParser, OutputFormat, commands
@@ -52,9 +54,9 @@ def test_status_reply_checksums_are_computed_not_copied() -> None:
         lambda: commands.set_distance_limits(500, 100),
     ],
 )
-def test_misuse_raises_value_error(bad: object) -> None:
+def test_misuse_raises_value_error(bad: Callable[[], object]) -> None:
     with pytest.raises(ValueError):
-        bad()  # type: ignore[operator]
+        bad()
 
 
 def round_trip(cmd: bytes, sensor: VirtualSensor | None = None) -> object:

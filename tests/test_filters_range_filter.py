@@ -5,6 +5,8 @@ from __future__ import annotations
 import math
 import random
 import tracemalloc
+from collections.abc import Sequence
+from typing import Any
 
 import pytest
 
@@ -32,7 +34,7 @@ def sigma_of(amp: int, lux: float = 0.0) -> float:
     return (CFG.sigma0_m + CFG.k_m_per_lux * lux) * CFG.amp_ref / amp
 
 
-def feed(flt: RangeFilter, zs: list[float | None], amp: int, k0: int = 0) -> list[Estimate]:
+def feed(flt: RangeFilter, zs: Sequence[float | None], amp: int, k0: int = 0) -> list[Estimate]:
     return [flt.step(z, amp, (k0 + k) * FRAME_NS) for k, z in enumerate(zs)]
 
 
@@ -71,7 +73,7 @@ def test_small_outlier_is_degraded_showing_the_prediction_with_a_covering_sigma(
     est = flt.step(2.12, 1800, 200 * FRAME_NS)
     assert est.status is Status.DEGRADED
     assert est.reasons == (Reason.OUTLIER,)
-    assert est.range_m == pytest.approx(2.0, abs=0.01)
+    assert est.range_m is not None and est.range_m == pytest.approx(2.0, abs=0.01)
     assert est.sigma_m is not None and 2.0 * est.sigma_m >= abs(2.12 - est.range_m)
     assert flt.step(2.0, 1800, 201 * FRAME_NS).status is Status.OK
 
@@ -148,8 +150,9 @@ def test_real_step_is_followed_within_two_frames() -> None:
     rng = random.Random(2)
     feed(flt, noisy(rng, 4.0, 500, 300), 500)
     after = feed(flt, noisy(rng, 1.2, 2500, 5), 2500, k0=300)
-    assert abs(after[1].range_m - 1.2) < 0.05
-    assert all(abs(e.range_m - 1.2) < 0.05 for e in after[1:])
+    first = after[1].range_m
+    assert first is not None and abs(first - 1.2) < 0.05
+    assert all(e.range_m is not None and abs(e.range_m - 1.2) < 0.05 for e in after[1:])
 
 
 def test_an_edge_is_followed_from_its_first_clean_reading_never_publishing_a_mixed_one() -> None:
@@ -279,6 +282,7 @@ def test_sigma_is_honest_on_a_static_target(amp: int, lux: float) -> None:
         out = feed(flt, noisy(random.Random(10 + seed), 2.345, amp, 1000, lux), amp)
         for e in out[125:]:
             if e.range_m is not None:
+                assert e.sigma_m is not None  # a range always comes with its sigma
                 total += 1
                 inside += abs(e.range_m - 2.345) <= 2 * e.sigma_m
     assert inside / total >= 0.90
@@ -485,7 +489,8 @@ def test_config_rejects_a_band_that_is_never_left(field: str, value: float) -> N
     unreliable zone then never clear), and a range band as wide as half the range
     never lets a reading back in."""
     with pytest.raises(ValueError, match=field):
-        FilterConfig(**{field: value})
+        kwargs: dict[str, Any] = {field: value}  # the field is named at run time
+        FilterConfig(**kwargs)
 
 
 def test_ok_only_outside_the_unreliable_zone() -> None:

@@ -64,7 +64,7 @@ def test_zone_does_not_flap_on_a_static_indoor_scene() -> None:
     assert dropouts < 0.01 * 1800
     changes = sum(a != b for a, b in itertools.pairwise(zones))
     assert changes <= 2, changes
-    assert zones.count("stable") > 0.95 * len(zones)
+    assert zones.count(Zone.STABLE) > 0.95 * len(zones)
 
 
 def test_the_filters_inline_zones_are_the_classifiers() -> None:

@@ -58,12 +58,13 @@ def reads(
         n = min(rng.randint(1, most), len(frames) - i)
         t = frames[i + n - 1] + rng.randint(50_000, 2 * MS)
         if next_stall is not None and t >= next_stall:
+            assert stalls_every_s  # next_stall is only set with stalls
             end = t + int(stall_s * NS)
             if not stamped_late:  # everything sent by the end of the stall
                 while i + n < len(frames) and frames[i + n] <= end:
                     n += 1
             t = end
-            next_stall = end + stalls_every_s * NS  # type: ignore[operator]
+            next_stall = end + stalls_every_s * NS
         t = max(t, last + 1)
         last = t
         i += n

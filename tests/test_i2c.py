@@ -15,6 +15,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
+from typing import Any
 
 import pytest
 
@@ -28,6 +29,7 @@ from lunad.daemon.sources.i2c import I2CSource
 from lunad.protocol import CommandReply, Frame, FrameParser, commands
 from lunad.protocol.client import Subscriber
 from lunad.protocol.commands import CommandId, Version, decode_reply
+from lunad.protocol.messages import HealthMessage
 from lunad.protocol.registers import Mode, Register
 from lunad.sim.fake_i2c import FakeSMBus
 from lunad.sim.physics import RawReading, Truth
@@ -87,9 +89,9 @@ def opener(fake: FakeSMBus) -> Iterator[Callable[..., I2CSource]]:
     """Opens ``I2CSource`` on bus "1" with the fake behind it; closes what it opened."""
     made: list[I2CSource] = []
 
-    def open_(bus: FakeSMBus | None = None, **kw: object) -> I2CSource:
+    def open_(bus: FakeSMBus | None = None, **kw: Any) -> I2CSource:
         dev = bus or fake
-        src = I2CSource("1", smbus_factory=lambda _bus: dev, **kw)  # type: ignore[arg-type]
+        src = I2CSource("1", smbus_factory=lambda _bus: dev, **kw)
         made.append(src)
         return src
 
@@ -184,12 +186,12 @@ def test_one_nack_at_open_is_retried(fake: FakeSMBus, opener: Callable[..., I2CS
     assert src.nacks == 1 and fake.mode is Mode.TRIGGER
 
 
-def test_missing_bus_device_is_an_open_error():
+def test_missing_bus_device_is_an_open_error() -> None:
     with pytest.raises(SourceOpenError, match=r"cannot open i2c bus 99 address 0x10: .*Errno 2"):
         I2CSource("99")  # real smbus2, no /dev/i2c-99
 
 
-def test_bus_factory_oserror_is_an_open_error():
+def test_bus_factory_oserror_is_an_open_error() -> None:
     def no_permission(bus: int | str) -> FakeSMBus:
         raise PermissionError(errno.EACCES, "Permission denied", f"/dev/i2c-{bus}")
 
@@ -197,7 +199,7 @@ def test_bus_factory_oserror_is_an_open_error():
         I2CSource("1", smbus_factory=no_permission)
 
 
-def test_failed_opens_leave_no_descriptors_behind():
+def test_failed_opens_leave_no_descriptors_behind() -> None:
     """The daemon retries an absent bus every 2 s: a pipe left open by each try ran a
     Pi out of descriptors in about 17 minutes (then os.pipe raised EMFILE)."""
     import os
@@ -219,11 +221,12 @@ def test_bad_arguments_are_value_errors(fake: FakeSMBus):
         I2CSource("1", rate_hz=99, smbus_factory=lambda _bus: fake)
 
 
-def test_sim_bus_and_from_config():
-    cfg = SimpleNamespace(kind="i2c", bus="sim", address=0x10, rate_hz=50)
-    with I2CSource.from_config(cfg) as src:  # type: ignore[arg-type]
+def test_sim_bus_and_from_config() -> None:
+    section = SourceSection(kind="i2c", bus="sim", address=0x10, rate_hz=50)
+    with I2CSource.from_config(section) as src:
         assert str(src) == "i2c bus sim address 0x10" and src.rate_hz == 50
         assert len(data_frames(collect(src, FrameParser(), frames=3))) == 3
+    # A section with no rate_hz at all, on purpose: from_config falls back to the default.
     cfg = SimpleNamespace(kind="i2c", bus="sim", address=0x10)
     with I2CSource.from_config(cfg) as src:  # type: ignore[arg-type]
         assert src.rate_hz == 100
@@ -403,7 +406,7 @@ def _health_notes_after(fake: FakeSMBus, tmp_path: Path, fault: Callable[[], Non
                     injected = True
                 elif m.kind == "range":
                     ranges_after += 1
-                elif m.kind == "health" and m.last_error:
+                elif isinstance(m, HealthMessage) and m.last_error:
                     notes.append(m.last_error)
             assert ranges_after >= 20, "the readings did not come back after the fault"
     finally:
@@ -569,7 +572,7 @@ def test_close_is_idempotent_and_read_after_close_is_lost(
 # -- the fake itself ------------------------------------------------------------------------
 
 
-def test_fake_register_map_and_nack():
+def test_fake_register_map_and_nack() -> None:
     dev = FakeSMBus()
     assert bytes(dev.read_i2c_block_data(0x10, Register.SIGNATURE, 4)) == b"LUNA"
     assert dev.read_i2c_block_data(0x10, Register.FPS_LOW, 2) == [100, 0]
@@ -581,7 +584,7 @@ def test_fake_register_map_and_nack():
         dev.read_i2c_block_data(0x10, 0, 33)
 
 
-def test_fake_trigger_only_in_trigger_mode_and_save_survives_reboot():
+def test_fake_trigger_only_in_trigger_mode_and_save_survives_reboot() -> None:
     now = [0.0]
     dev = FakeSMBus(model=FixedModel(), clock=lambda: now[0])
     dev.write_byte_data(0x10, Register.TRIG_ONE_SHOT, 1)

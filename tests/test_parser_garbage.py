@@ -101,6 +101,12 @@ def feed_bytewise(data: bytes) -> tuple[list[Frame | CommandReply], FrameParser]
     return [x for k in range(len(data)) for x in p.feed(data[k : k + 1], k)], p
 
 
+def data_frames(items: list[Frame | CommandReply]) -> list[Frame]:
+    """``items``, which must all be data frames (no command reply among them)."""
+    assert all(isinstance(x, Frame) for x in items), items
+    return [x for x in items if isinstance(x, Frame)]
+
+
 def _key(x: Frame | CommandReply) -> tuple[object, ...]:
     if isinstance(x, Frame):
         return ("f", x.dist, x.amp, x.temp_raw, x.t_mono_ns)
@@ -235,7 +241,7 @@ def test_a_stray_0x59_does_not_swallow_the_frame_after_it() -> None:
     for chunks in ([data], [data[k : k + 1] for k in range(len(data))], [data[:10], data[10:]]):
         p = FrameParser()
         out = [x for c in chunks for x in p.feed(c, 0)]
-        assert [encode_frame(f.dist, f.amp, f.temp_raw) for f in out] == [real, nxt]  # type: ignore[union-attr]
+        assert [encode_frame(f.dist, f.amp, f.temp_raw) for f in data_frames(out)] == [real, nxt]
         assert (p.stats.displaced_frames, p.stats.bytes_discarded) == (1, 1)
 
 
@@ -243,7 +249,7 @@ def test_a_false_frame_with_an_impossible_temperature_is_garbage() -> None:
     real = _collision(0x0940)  # low byte 0x40: the false window reads 1793 degC
     p = FrameParser()
     out = p.feed(b"\x59" + real, 0)
-    assert [encode_frame(f.dist, f.amp, f.temp_raw) for f in out] == [real]  # type: ignore[union-attr]
+    assert [encode_frame(f.dist, f.amp, f.temp_raw) for f in data_frames(out)] == [real]
     assert p.stats.implausible_frames == 1 and p.stats.displaced_frames == 0
     p = FrameParser()
     assert p.feed(encode_frame(200, 1500, 0), 0) == []  # -256 degC
@@ -256,13 +262,13 @@ def test_an_unambiguous_frame_comes_out_at_once_an_ambiguous_one_at_the_next_hea
     plain = encode_frame(200, 1500, 2368)
     assert plain[8] != 0x59
     p = FrameParser()
-    assert [f.t_mono_ns for f in p.feed(plain, 1)] == [1]  # type: ignore[union-attr]
+    assert [f.t_mono_ns for f in p.feed(plain, 1)] == [1]
     held = next(f for d in range(2000) if (f := encode_frame(d, 1500, 2368))[8] == 0x59)
     assert p.feed(held, 2) == [] and p.stats.buffered == 9
     assert p.feed(plain[:1], 3) == []
     out = p.feed(plain[1:], 4)
     want = [(int.from_bytes(held[2:4], "little"), 2), (200, 4)]
-    assert [(f.dist, f.t_mono_ns) for f in out] == want  # type: ignore[union-attr]
+    assert [(f.dist, f.t_mono_ns) for f in data_frames(out)] == want
     assert p.stats.buffered == 0
     p = FrameParser()
     assert len(p.feed(held + plain, 5)) == 2  # linked within the read: no wait

@@ -87,7 +87,7 @@ def test_pump_stops_at_its_bound_and_asks_to_be_called_again(tmp_path: Path) -> 
         frames = 3 * publisher.PUMP_EVENTS
         for _ in range(frames):
             peer.send(b"\x07not a subscription")
-        read = []
+        read: list[int] = []
         deadline = time.monotonic() + 5
         while sum(read) < frames and time.monotonic() < deadline:
             before = pub.junk_frames

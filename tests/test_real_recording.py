@@ -66,7 +66,7 @@ def _ranges_until_stopped(endpoint: str, timeout_s: float) -> list[RangeMessage]
     and a full-speed replay (3000 messages in about a tenth of a second) outran this
     loop on a loaded machine.
     """
-    ctx = zmq.Context.instance()
+    ctx: zmq.Context[zmq.Socket[bytes]] = zmq.Context.instance()
     sock = ctx.socket(zmq.SUB)
     sock.setsockopt(zmq.RCVHWM, 0)
     sock.setsockopt(zmq.LINGER, 0)

@@ -15,6 +15,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from lunad.daemon.config import SourceSection
 from lunad.daemon.errors import LunadError, SourceOpenError
 from lunad.daemon.sources.base import Chunk
 from lunad.daemon.sources.recording import (
@@ -289,7 +290,12 @@ def test_fsync_interval_zero_syncs_every_record(
 ) -> None:
     synced: list[int] = []
     real_fsync = os.fsync
-    monkeypatch.setattr(os, "fsync", lambda fd: (synced.append(fd), real_fsync(fd)))
+
+    def recording_fsync(fd: int) -> None:
+        synced.append(fd)
+        real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", recording_fsync)
     with Recorder(tmp_path / "s.lunarec", fsync_interval_s=0.0) as rec:
         synced.clear()
         rec(CHUNKS[0])
@@ -454,10 +460,12 @@ def test_replay_source_ignores_writes_and_closes_twice(recording: Path) -> None:
 
 
 def test_replay_source_from_config_and_errors(recording: Path, tmp_path: Path) -> None:
-    cfg = SimpleNamespace(path=recording, speed=2.0)
-    with ReplaySource.from_config(cfg) as src:  # type: ignore[arg-type]
+    cfg = SourceSection(kind="replay", path=str(recording), speed=2.0)
+    with ReplaySource.from_config(cfg) as src:
         assert str(src).endswith("at 2x")
     with pytest.raises(SourceOpenError, match=r"\[source\] path"):
+        # No path, on purpose (a SourceSection of kind replay refuses that itself):
+        # from_config's own check.
         ReplaySource.from_config(SimpleNamespace(path=None, speed=1.0))  # type: ignore[arg-type]
     with pytest.raises(SourceOpenError, match="missing"):
         ReplaySource(tmp_path / "missing.lunarec")
@@ -488,8 +496,8 @@ def test_replay_feeds_the_parser_exactly_as_live(tmp_path: Path) -> None:
     replay_parser = FrameParser()
     replay_out = []
     with ReplaySource(path, speed=None) as src:
-        while (chunk := src.read(0.0)) is not None:
-            replay_out += replay_parser.feed(chunk.data, chunk.t_mono_ns)
+        while (read := src.read(0.0)) is not None:
+            replay_out += replay_parser.feed(read.data, read.t_mono_ns)
     assert replay_out == live_out
     assert len(live_out) == 50
     assert replay_parser.stats == live_parser.stats

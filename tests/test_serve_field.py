@@ -18,7 +18,7 @@ from lunad.daemon.sources.base import Chunk, Source
 from lunad.filters import FilterConfig
 from lunad.protocol.client import Subscriber
 from lunad.protocol.commands import CommandId, encode_reply
-from lunad.protocol.messages import HealthMessage, RangeMessage, decode, topic
+from lunad.protocol.messages import HealthMessage, Message, RangeMessage, decode, topic
 from lunad.sim.pty_device import PtyDevice
 from lunad.sim.virtual_sensor import VirtualSensor
 
@@ -34,7 +34,7 @@ def late_subscription_s(endpoint: str, sensor: str, last_seq: int) -> float:
         t0 = time.monotonic()
         sock.setsockopt(zmq.SUBSCRIBE, topic("range", sensor))
         sock.setsockopt(zmq.SUBSCRIBE, topic("health", sensor))
-        got = {}
+        got: dict[str, Message] = {}
         while len(got) < 2:
             assert sock.poll(5000), "no cached message within 5 s"
             frame, payload = sock.recv_multipart()
@@ -44,7 +44,8 @@ def late_subscription_s(endpoint: str, sensor: str, last_seq: int) -> float:
         sock.close(linger=0)
         ctx.term()
     # a silent sensor and no periodic health due: only a cache sends these
-    assert got["range"].seq == last_seq  # the cached latest reading
+    cached = got["range"]
+    assert isinstance(cached, RangeMessage) and cached.seq == last_seq  # the latest reading
     return took
 
 
@@ -264,6 +265,7 @@ def test_a_reads_frames_are_spaced_by_the_rate_the_sensor_sends_at(
         stamps.append(t_mono_ns)
         return step(frame, raw_m, t_mono_ns)
 
+    # Test doubles, on purpose: a spy on the filter step and a publisher that sends nothing.
     d._step = recording_step  # type: ignore[method-assign]
     d.pub = Pub()  # type: ignore[assignment]
     d.health = Health("t", 0, "0000000000000000", FilterConfig())
@@ -388,7 +390,7 @@ def test_the_filter_gets_a_reads_frames_a_frame_period_apart(
         *("--replay", str(rec), "--speed", "max", "--publish", endpoint, "--rate", "250"),
         *(("--publish-hz", str(publish_hz)) if publish_hz else ()),
     )
-    got = []
+    got: list[RangeMessage] = []
     with Subscriber(endpoint) as sub:
         m = sub.recv(timeout_s=30.0)  # a daemon starting on a loaded machine can take seconds
         while m is not None and len(got) < 40:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -51,7 +51,7 @@ def replies(items: list[Frame | CommandReply]) -> dict[int, object]:
 
 
 @pytest.fixture
-def port(device: Callable[..., PtyDevice]) -> tuple[PtyDevice, serial.Serial]:
+def port(device: Callable[..., PtyDevice]) -> Iterator[tuple[PtyDevice, serial.Serial]]:
     dev = device(rate_hz=250)
     ser = serial.serial_for_url(dev.path, 115200, timeout=0.05, exclusive=True)
     yield dev, ser

@@ -35,6 +35,7 @@ from lunad.daemon.cli.watch import (
 from lunad.protocol.messages import (
     HealthMessage,
     RangeMessage,
+    State,
     encode_health,
     encode_range,
     range_ident,
@@ -286,7 +287,7 @@ class Publisher:
         self._sock.send_multipart([topic("range", SENSOR), payload])
         self.seq += 1
 
-    def health(self, state: str, last_error: str | None = None) -> None:
+    def health(self, state: State, last_error: str | None = None) -> None:
         msg = HealthMessage(
             sensor=SENSOR, run=RUN, t_unix_ns=time.time_ns(), t_mono_ns=time.monotonic_ns(),
             state=state, frames=self.seq, checksum_errors=0, bytes_discarded=0,
@@ -419,7 +420,7 @@ class Feed:
     def __init__(self, pub: Publisher, health_every_s: float = 0.2) -> None:
         self.pub = pub
         self.ranges = True
-        self.state: str | None = "connected"
+        self.state: State | None = "connected"
         self.last_error: str | None = None
         self.health_every_s = health_every_s
         self._next_range = self._next_health = 0.0
