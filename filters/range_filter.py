@@ -391,6 +391,7 @@ class RangeFilter:
         "_refresh_ticks",
         "_run_amp",
         "_run_away",
+        "_run_ended_ns",
         "_run_gap",
         "_run_last",
         "_run_mixed",
@@ -543,6 +544,7 @@ class RangeFilter:
         self._run_sign = self._run_mixed = False
         self._run_amp = 0
         self._run_gap = 0
+        self._run_ended_ns = _NEVER  # the frame whose reading ended a run of outliers
         c0 = c.sigma0_m + c.k_m_per_lux * c.lux_init
         self.c2 = c0 * c0
         self.noise_fast = self.noise_light = self.noise_slow = self._slow_of_slow = 0.0
@@ -792,6 +794,7 @@ class RangeFilter:
                 else:
                     if self._run_n:
                         self._run_n = 0
+                        self._run_ended_ns = t
                     if self._sh_on and self._shadow_step(z, r, e2, sp, t):
                         # The still track explains the readings as well: it is the track,
                         # settled, and the innovation means were the other track's.
@@ -959,6 +962,15 @@ class RangeFilter:
                 if outlier_e:
                     reasons = _OUTLIER_AMBIENT if ambient else _OUTLIER
                 elif zone is _UNRELIABLE:  # ok only where the paper's model holds
+                    if z is not None and (gap or self._run_ended_ns == t):
+                        d = x - z
+                        if d * d > self._outlier_drop2:
+                            # Back after frames it did not take and 20 cm from its
+                            # reading: a track that coasted past the readings (a
+                            # sweep's far corner) gets no figure, as an outlier's
+                            # does (above; docs/filter.md section 5).
+                            reasons = _WEAK_OUTLIER if marginal else _OUTLIER
+                            return _new(Estimate, (None, None, lux_out, s, _DROPOUT, reasons, zone))
                     reasons = _AMBIENT_UNRELIABLE if ambient else _UNRELIABLE_ZONE
                 elif ambient:
                     reasons = _AMBIENT
