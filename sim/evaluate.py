@@ -781,9 +781,10 @@ def _conditions(report: EvalReport) -> str:
 
 
 def format_summary(report: EvalReport, targets: Targets | None = None) -> str:
-    """The tally ``lunad eval --summary`` prints: the targets missed by kind, and by
-    scenario and world, without a line per run (a comparison of two filters wants
-    hundreds of seeds: docs/filter.md, "Seeds beyond the three")."""
+    """The tally ``lunad eval --summary`` prints: the targets missed by kind, then a
+    table of them by scenario and world, split by kind, without a line per run (a
+    comparison of two filters wants hundreds of seeds: docs/filter.md, "Seeds beyond
+    the three")."""
     results = report.scenarios
     seeds = {r.seed for r in results}
     names = list(dict.fromkeys(r.scenario for r in results))
@@ -812,14 +813,14 @@ def format_summary(report: EvalReport, targets: Targets | None = None) -> str:
         "targets missed by scenario and world (oracle_too: of them, where the oracle"
         " misses too), and by kind:"
     )
-    by_run: Counter[tuple[str, str, str]] = Counter()
+    cells: Counter[tuple[str, str, str]] = Counter()
     runs: Counter[tuple[str, str]] = Counter()
     for r, ms in zip(results, per_run, strict=True):
         runs[r.scenario, r.world] += 1
         for m in ms:
-            by_run[r.scenario, r.world, m.kind] += 1
-            by_run[r.scenario, r.world, "missed"] += 1
-            by_run[r.scenario, r.world, "oracle_too"] += m.oracle_too
+            cells[r.scenario, r.world, m.kind] += 1
+            cells[r.scenario, r.world, "missed"] += 1
+            cells[r.scenario, r.world, "oracle_too"] += m.oracle_too
     width = max(len(n) for n in (*names, "scenario"))
     columns = ["missed", "oracle_too", *shown]
     lines.append(
@@ -828,8 +829,8 @@ def format_summary(report: EvalReport, targets: Targets | None = None) -> str:
     )
     for name in names:
         for w in worlds:
-            cells = (f"{by_run[name, w, c]:>{max(len(c), 4)}}" for c in columns)
-            lines.append(f"  {name:<{width}} {w:<5} {runs[name, w]:>5} " + " ".join(cells))
+            row = (f"{cells[name, w, c]:>{max(len(c), 4)}}" for c in columns)
+            lines.append(f"  {name:<{width}} {w:<5} {runs[name, w]:>5} " + " ".join(row))
     return "\n".join(lines)
 
 
