@@ -155,6 +155,45 @@ def test_real_step_is_followed_within_two_frames() -> None:
     assert all(e.range_m is not None and abs(e.range_m - 1.2) < 0.05 for e in after[1:])
 
 
+def test_two_noisy_readings_of_the_same_surface_do_not_restart_a_still_track() -> None:
+    """A jump of light raises the noise before the measured noise follows it: readings
+    beyond the gate then come in pairs on one side now and then (cloud_flicker: 6.6 to
+    23 cm of noise at once) and restarted the track 0.3-0.4 m off. Their amp is the
+    surface's own, which a step moves: a still track waits for a third agreeing reading
+    whose amp matches the track's (SAME_AMP_SHARE), and a step whose amp moves, or a
+    pair that meets a moving track, is followed on the second reading as before."""
+
+    def still() -> RangeFilter:
+        flt = RangeFilter()
+        feed(flt, noisy(random.Random(3), 3.0, 1000, 300), 1000)
+        return flt
+
+    flt = still()
+    pair = feed(flt, [3.35, 3.37], 1000, k0=300)
+    assert [e.reasons for e in pair] == [(Reason.OUTLIER,), (Reason.OUTLIER,)]
+    assert flt.x == pytest.approx(3.0, abs=0.02)
+    back = flt.step(3.0, 1000, 302 * FRAME_NS)
+    assert back.range_m == pytest.approx(3.0, abs=0.02)
+
+    flt = still()
+    step = feed(flt, [3.35, 3.37, 3.36], 1000, k0=300)
+    assert step[1].range_m is None
+    assert step[2].range_m == pytest.approx(3.36, abs=0.02)
+
+    for amp in (1000 - 130, 1000 + 130):  # beyond the share: another surface
+        flt = still()
+        moved = feed(flt, [3.35, 3.37], amp, k0=300)
+        assert moved[1].range_m == pytest.approx(3.36, abs=0.02)
+
+    flt = RangeFilter()  # a track moving at 1 m/s: a sweep turning a corner
+    rng = random.Random(5)
+    ramp = [2.0 + k * FRAME_NS * 1e-9 + rng.gauss(0, sigma_of(1000)) for k in range(300)]
+    feed(flt, [round(z * 100) / 100 for z in ramp], 1000)
+    assert flt.v == pytest.approx(1.0, abs=0.2)
+    turned = feed(flt, [3.55, 3.56], 1000, k0=300)
+    assert turned[1].range_m == pytest.approx(3.555, abs=0.02)
+
+
 def test_an_edge_is_followed_from_its_first_clean_reading_never_publishing_a_mixed_one() -> None:
     """A dark object at 1 m leaves the beam for a white wall at 5 m: the first two
     readings mix both surfaces (1.72 and 2.92 m, as sim/edges.py draws them) and agree
@@ -1094,8 +1133,9 @@ def test_a_still_track_a_step_leaves_far_behind_is_let_go_at_once() -> None:
     flt = RangeFilter()
     feed(flt, noisy(rng, 3.0, amp, 600), amp)
     judged = []
-    for k, z in enumerate(noisy(rng, 2.0, amp, 10)):
-        flt.step(z, amp, (600 + k) * FRAME_NS)
+    near = 1800  # the same surface 1 m closer returns (3 / 2)^2 times the amp
+    for k, z in enumerate(noisy(rng, 2.0, near, 10)):
+        flt.step(z, near, (600 + k) * FRAME_NS)
         judged.append(flt._sh_on)
     assert judged[1]  # the step's two readings restarted the track, the still track beside it
     assert not any(judged[3:])
