@@ -167,10 +167,10 @@ STILL_SPEED_M_S = 0.5
 """The track speed, m/s, below which ``SAME_AMP_SHARE`` applies. A beam sweeping a room
 turns at a corner onto a wall of the same material at about the same distance: the
 readings past the corner agree with each other and not with the track, at an amp the
-track's last reading had. Waiting for a third there cost the corners' lag: ``lunad
-eval``, seeds 1900-2059, room_sweep in the shot world missed RMSE against the oracle
-47 times against 19 without the speed bound, 19 with it at 0.5 m/s (1.0 m/s: 22,
-1268 targets missed in all)."""
+track's last reading had. Waiting for a third there lagged the corners: ``lunad
+eval``, seeds 1900-2059, room_sweep in the shot world missed its RMSE target against
+the oracle on 47 runs without the speed bound, on 19 with it at 0.5 m/s, as with no
+wait at all (at 1.0 m/s: 22, and 1268 targets missed in all against 1267)."""
 _STILL_V2 = STILL_SPEED_M_S * STILL_SPEED_M_S
 
 COVER_SIGMAS = 3.0
