@@ -158,9 +158,9 @@ one side restarted the track 0.3-0.4 m off, and it chased the noise. ``lunad eva
 seeds 1900-2059 (the choice) and 2060-2219: 1267 and 1263 targets missed against 1320
 and 1331, bad outputs 20 and 27 against 47 and 57 (cloud_flicker in the shot world 8
 and 9 against 33 and 38), step lags over 3 frames 25 and 29 as before; a share of 8 %
-missed 1305 on the first (bad outputs 27). A sensor whose amp jitters more (the real
-roadside log: a quarter of consecutive readings within 3 cm of each other part by
-more than 1.3x) waits less often: the rule then changes less (docs/filter.md
+missed 1305 on the first (bad outputs 27), 16 % 1265. A sensor whose amp jitters more
+(the real roadside log: a quarter of consecutive readings within 3 cm of each other
+part by more than 1.3x) waits less often: the rule then changes less (docs/filter.md
 section 4)."""
 
 STILL_SPEED_M_S = 0.5
