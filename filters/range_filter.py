@@ -428,7 +428,7 @@ class RangeFilter:
         "_run_n",
         "_run_r",
         "_run_rsum",
-        "_run_same_amp",
+        "_run_same",
         "_run_side",
         "_run_sign",
         "_run_sum",
@@ -574,7 +574,8 @@ class RangeFilter:
         self._run_n = self._run_away = self._run_side = 0
         self._run_sum = self._run_rsum = self._run_last = self._run_r = 0.0
         self._run_sign = self._run_mixed = False
-        self._run_amp = self._run_same_amp = self._track_amp = 0
+        self._run_amp = self._track_amp = 0
+        self._run_same = False  # every amp of the run on the track's surface
         self._run_gap = 0
         self._run_ended_ns = _NEVER  # the frame whose reading ended a run of outliers
         c0 = c.sigma0_m + c.k_m_per_lux * c.lux_init
@@ -782,8 +783,11 @@ class RangeFilter:
                     away = self._run_away
                     side = self._run_side + 1 if n and sign == self._run_sign else 1
                     self._run_side = side
+                    ta = self._track_amp  # the surface the track is on (SAME_AMP_SHARE)
+                    same = abs(amp - ta) < SAME_AMP_SHARE * ta
                     if n and sign == self._run_sign and d * d <= self._gate2 * (r + self._run_r):
                         n += 1
+                        same = same and self._run_same
                         self._run_sum += z
                         self._run_rsum += r
                         away = 0
@@ -796,10 +800,6 @@ class RangeFilter:
                         else:
                             away = 0
                         n = 1
-                        # The track's amp, where the run starts on the same surface
-                        # (SAME_AMP_SHARE); 0 otherwise.
-                        a0 = self._track_amp
-                        self._run_same_amp = a0 if abs(amp - a0) < SAME_AMP_SHARE * a0 else 0
                         self._run_sum = z
                         self._run_rsum = r
                         self._run_sign = sign
@@ -809,11 +809,10 @@ class RangeFilter:
                     self._run_last = z
                     self._run_r = r
                     self._run_gap = 0
-                    a0 = self._run_same_amp
+                    self._run_same = same
                     if n >= self._confirm and (  # on the same surface, a still track waits
                         n > self._confirm  # for one more (SAME_AMP_SHARE)
-                        or not a0
-                        or abs(amp - a0) >= SAME_AMP_SHARE * a0
+                        or not same
                         or self.v * self.v >= _STILL_V2
                     ):
                         self._shadow(x, self.v, p00, p01, p11, t)  # the track as it was
