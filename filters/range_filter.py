@@ -804,6 +804,13 @@ class RangeFilter:
                 sp = p00 + r
                 e2 = e * e
                 if e2 > self._gate2 * sp:
+                    # The manoeuvre test's mean square takes the rejected reading at
+                    # the gate: after a jump of the light, readings fall beyond the
+                    # gate while the reading variance still climbs, and the accepted
+                    # ones alone leave the mean square behind the new noise that the
+                    # fast mean already shows (docs/filter.md section 4).
+                    power = self.man_power
+                    self.man_power = power + self._drift_gain * (self._gate2 * sp - power)
                     sign = e > 0.0
                     d = z - self._run_last
                     n = self._run_n
