@@ -484,6 +484,8 @@ class RangeFilter:
         "_still_ns",
         "_thr2",
         "_track_amp",
+        "_trend_hold",
+        "_trend_run",
         "_unrel2",
         "_v0var",
         "_z1",
@@ -567,6 +569,7 @@ class RangeFilter:
         self._fast_keep = 1.0 / c.noise_frames
         # The slow side sees one sample in SLOW_EVERY: its weights count readings.
         self._slow_keep = min(1.0, SLOW_EVERY / c.noise_slow_frames)
+        self._trend_hold = max(1, round(c.noise_slow_frames / SLOW_EVERY))
         self._slow_restart_w = min(1.0, SLOW_EVERY / (SLOW_RESTART_SPANS * c.noise_frames))
         self._span_frames = max(1, round(c.noise_frames / SLOW_EVERY))
         # After a stretch where the light cannot be seen, the slow side waits until the
@@ -616,6 +619,7 @@ class RangeFilter:
         self._spans_seen = 0
         self._span_k = self._span_frames
         self._slow_tick = SLOW_EVERY
+        self._trend_run = 0  # slow samples in a row with the lag beyond its gate, signed
         self.lux: float | None = None
         self._z1: float | None = None
         self._z2: float | None = None
@@ -1186,13 +1190,27 @@ class RangeFilter:
                 slow = slow2 = rose
         self.noise_slow = slow
         self._slow_of_slow = slow2
-        # The slow average's lag on a ramp of light, beyond what it scatters by.
+        # The slow average's lag on a ramp of light, beyond what it scatters by; on a
+        # still track, a gate that narrows once the lag has held beyond it for longer
+        # than a slow average's span (SLOW_TREND_GATE in noise.py).
         lag = slow - slow2
         gate = SLOW_TREND_GATE * slow
         if lag > gate:
+            run = self._trend_run
+            run = run + 1 if run > 0 and self.v * self.v < _STILL_V2 else 1
+            self._trend_run = run
+            if run > self._trend_hold:
+                gate *= self._trend_hold / run
             slow += lag - gate
         elif lag < -gate:
+            run = self._trend_run
+            run = run - 1 if run < 0 and self.v * self.v < _STILL_V2 else -1
+            self._trend_run = run
+            if -run > self._trend_hold:
+                gate *= self._trend_hold / -run
             slow += lag + gate
+        elif self._trend_run:
+            self._trend_run = 0
         c2 = slow * slow * self._kL - qs2
         if c2 < obs or self._spans_seen < LIGHT_MEASURED_SPANS:
             self.lux = None
@@ -1229,6 +1247,7 @@ class RangeFilter:
 
     def _start(self, z_m: float, r_m2: float) -> None:
         """Begin a track at ``z_m`` (variance ``r_m2``) with unknown speed."""
+        self._trend_run = 0  # a new surface: its noise's trend is not the light's
         self.active = True
         self.x = z_m
         self.v = 0.0

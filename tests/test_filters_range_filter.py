@@ -948,9 +948,10 @@ def test_the_reading_noise_follows_a_change_of_light_within_a_third_of_a_second(
 def test_the_light_follows_the_sun_coming_out_without_the_slow_averages_lag() -> None:
     """The sun comes out over a dark target (sun_ramp: S = 0.235, 5 klux/s from dark
     after 2 s). An average lags a ramp by about its length, here a second, 5 klux; the
-    slow average is kept twice and the lag the two show is added back
-    (``SLOW_TREND_GATE``). From 10 klux on, over 20 starts, ``lux_est`` is within
-    30 % or 2 klux on 72.5 % of its figures, against 64.5 % without the lag added."""
+    slow average is kept twice and the lag the two show is added back beyond a gate
+    that narrows once the lag has held beyond it for the slow average's span
+    (``SLOW_TREND_GATE``). From 10 klux on, over 20 starts, ``lux_est`` is within 30 %
+    or 2 klux on 79.0 % of its figures, against 73.4 % with the gate kept whole."""
     amp = 470
 
     def share_within(seed: int) -> float:
@@ -966,7 +967,7 @@ def test_the_light_follows_the_sun_coming_out_without_the_slow_averages_lag() ->
                 good += abs(est.lux_est - lux) <= max(0.3 * lux, 2000.0)
         return good / judged
 
-    assert sum(share_within(seed) for seed in range(20)) / 20 >= 0.70
+    assert sum(share_within(seed) for seed in range(20)) / 20 >= 0.76
 
 
 def test_after_a_long_still_stretch_the_noise_is_measured_again() -> None:
