@@ -1195,20 +1195,14 @@ class RangeFilter:
         # than a slow average's span (SLOW_TREND_GATE in noise.py).
         lag = slow - slow2
         gate = SLOW_TREND_GATE * slow
-        if lag > gate:
-            run = self._trend_run
+        if lag > gate or -lag > gate:
+            side = 1 if lag > 0.0 else -1
+            run = self._trend_run * side  # > 0: the run so far is on this side
             run = run + 1 if run > 0 and self.v * self.v < _STILL_V2 else 1
-            self._trend_run = run
+            self._trend_run = run * side
             if run > self._trend_hold:
                 gate *= self._trend_hold / run
-            slow += lag - gate
-        elif lag < -gate:
-            run = self._trend_run
-            run = run - 1 if run < 0 and self.v * self.v < _STILL_V2 else -1
-            self._trend_run = run
-            if -run > self._trend_hold:
-                gate *= self._trend_hold / -run
-            slow += lag + gate
+            slow += lag - side * gate
         elif self._trend_run:
             self._trend_run = 0
         c2 = slow * slow * self._kL - qs2

@@ -1084,22 +1084,36 @@ def test_a_manoeuvre_test_fired_by_noise_leaves_no_lasting_error() -> None:
     assert math.sqrt(sum(rms * rms for rms, _, _ in runs) / len(runs)) < 0.0052
 
 
-def _through_a_jump_of_light(seed: int) -> tuple[float, int]:
-    """A still target at 3 m: 1 s under 60 klux, 1 s under 2 klux, then the light jumps
-    to 25 klux for 1 s (cloud_flicker's jump at 1.68 s). The squared errors (m^2) summed
-    over the last two seconds, and how many frames they cover."""
+def _a_still_card_under(
+    lights: Sequence[tuple[float, int]], judged_from: int, seed: int
+) -> tuple[float, int, bool]:
+    """A still grey card at 3 m (amp 340) under each (lux, frames) of ``lights`` in
+    turn. From frame ``judged_from`` on: the squared errors (m^2) summed, how many
+    frames they cover, and whether the manoeuvre test fired."""
     amp = 340
     rng = random.Random(seed)
-    zs = noisy(rng, 3.0, amp, 250, lux=60000.0) + noisy(rng, 3.0, amp, 250, lux=2000.0)
-    zs += noisy(rng, 3.0, amp, 250, lux=25000.0)
+    zs: list[float] = []
+    for lux, frames in lights:
+        zs += noisy(rng, 3.0, amp, frames, lux=lux)
     flt = RangeFilter()
     sq = 0.0
     n = 0
+    fired = False
     for k, z in enumerate(zs):
         e = flt.step(z, amp, k * FRAME_NS)
-        if k >= 500 and e.range_m is not None:
-            sq += (e.range_m - 3.0) ** 2
-            n += 1
+        if k >= judged_from:
+            fired = fired or flt.qa == CFG.manoeuvre_accel_psd
+            if e.range_m is not None:
+                sq += (e.range_m - 3.0) ** 2
+                n += 1
+    return sq, n, fired
+
+
+def _through_a_jump_of_light(seed: int) -> tuple[float, int]:
+    """1 s under 60 klux, 1 s under 2 klux, then the light jumps to 25 klux for 1 s
+    (cloud_flicker's jump at 1.68 s): the squared errors (m^2) summed over the last two
+    seconds, and how many frames they cover."""
+    sq, n, _ = _a_still_card_under(((60000.0, 250), (2000.0, 250), (25000.0, 250)), 500, seed)
     return sq, n
 
 
@@ -1115,36 +1129,15 @@ def test_the_still_track_is_judged_soon_after_a_hold_ends() -> None:
     assert math.sqrt(sum(sq for sq, _ in runs) / frames) < 0.0077
 
 
-def _after_the_sun_comes_out(seed: int) -> tuple[float, int, bool]:
-    """A still target at 3 m: 1.5 s under 4.5 klux (3 cm of reading noise), then the
-    light jumps to 58 klux (11 cm; cloud_flicker's jump at 5.9 s) for 1 s. The squared
-    errors (m^2) summed over that second, how many frames they cover, and whether the
-    manoeuvre test fired in it."""
-    amp = 340
-    rng = random.Random(seed)
-    zs = noisy(rng, 3.0, amp, 375, lux=4500.0) + noisy(rng, 3.0, amp, 250, lux=58000.0)
-    flt = RangeFilter()
-    sq = 0.0
-    n = 0
-    fired = False
-    for k, z in enumerate(zs):
-        e = flt.step(z, amp, k * FRAME_NS)
-        if k >= 375:
-            fired = fired or flt.qa == CFG.manoeuvre_accel_psd
-            if e.range_m is not None:
-                sq += (e.range_m - 3.0) ** 2
-                n += 1
-    return sq, n, fired
-
-
 def test_a_jump_of_light_is_not_a_manoeuvre() -> None:
     """Readings rejected at the gate enter the manoeuvre test's mean square at the gate:
-    after the light jumps 13-fold in variance, a third of the readings fall beyond the
-    gate while the reading variance still climbs, and a mean square of the accepted
-    ones alone lagged the noise that the innovations' mean over 10 readings showed at
-    once. 40 seeds: the test fired on 8 against 17, and the second after the jump is
-    1.13 cm off RMS against 1.41 cm."""
-    runs = [_after_the_sun_comes_out(seed) for seed in range(40)]
+    after the light jumps 13-fold in variance (1.5 s under 4.5 klux, 3 cm of reading
+    noise, then 1 s under 58 klux, 11 cm: cloud_flicker's jump at 5.9 s), a quarter of
+    the readings fall beyond the gate while the reading variance still climbs, and a
+    mean square of the accepted ones alone lagged the noise that the innovations' mean
+    over 10 readings showed at once. 40 seeds: the test fired in the second after the
+    jump on 8 against 17, and that second is 1.13 cm off RMS against 1.41 cm."""
+    runs = [_a_still_card_under(((4500.0, 375), (58000.0, 250)), 375, seed) for seed in range(40)]
     frames = sum(n for _, n, _ in runs)
     assert frames > 40 * 240
     assert sum(fired for _, _, fired in runs) <= 12
