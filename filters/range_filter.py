@@ -403,6 +403,7 @@ class RangeFilter:
         "_boot_track",
         "_boot_until_ns",
         "_c2_floor",
+        "_chained",
         "_clip_a",
         "_clip_step",
         "_confirm",
@@ -427,6 +428,7 @@ class RangeFilter:
         "_last_t_ns",
         "_latched",
         "_learn_below",
+        "_links",
         "_lux_enter",
         "_lux_exit",
         "_m1",
@@ -621,9 +623,10 @@ class RangeFilter:
         self._slow_tick = SLOW_EVERY
         self._trend_run = 0  # slow samples in a row with the lag beyond its gate, signed
         self.lux: float | None = None
-        self._z1: float | None = None
-        self._z2: float | None = None
+        self._z1 = self._z2 = 0.0  # the last two readings, metres, where _links says
+        self._links = 0  # how many of _z1, _z2 hold readings of the present chain
         self._gap = self._gap_prev = 0
+        self._chained = False  # readings on the last two frames, none missed between
         self._boot: list[float] | None = [] if self._boot_ok else None
         self._boot_track: list[tuple[float, float, int]] | None = [] if self._boot_ok else None
         self._boot_until_ns = _NEVER
@@ -733,63 +736,48 @@ class RangeFilter:
         if z is not None:
             # The noise, from the second differences of the raw readings (noise.py).
             s2 = s * s
-            gap = self._gap  # frames missing since the last reading
-            if gap:
-                self._gap = 0
             z1 = self._z1
-            z2 = self._z2
-            if z1 is None or gap >= MAX_GAP_FRAMES:
-                self._z2 = None
-            else:
-                self._z2 = z1
-                if z2 is not None:
-                    gap_prev = self._gap_prev
-                    if gap or gap_prev:  # bridged over the missing frames
-                        g1 = gap + 1
-                        g2 = gap_prev + 1
-                        d = ((z - z1) / g1 - (z1 - z2) / g2) * GAP_NORMALISERS[g1][g2]
-                    else:
-                        d = z - 2.0 * z1 + z2
-                    y = (d if d >= 0.0 else -d) * s
-                    w = self._fast_w
-                    if w > self._fast_keep:  # still a running mean, after a start
-                        w = self._learning(y, s2, w, last)
-                    light = self.noise_light
-                    fast = self.noise_fast
-                    lim = self._clip_a * fast
-                    if y > lim:  # clipped: and beyond the light's cut, not light at all
-                        if y < self._cut_a * light:
-                            self.noise_light = light + w * (y - light)
-                        q_lim = self._clip_step * s
-                        if lim < q_lim:  # a one-step difference counts whole
-                            lim = q_lim if y > q_lim else y
-                        y = lim
-                    else:
-                        self.noise_light = light + w * (y - light)
-                    fast += w * (y - fast)
-                    self.noise_fast = fast
-                    qs2 = self._q_m2 * s2
-                    c2 = fast * fast * self._kA - qs2
-                    self.c2 = c2 if c2 > self._c2_floor else self._c2_floor
-                    obs = self._obs2 * s2
-                    if c2 < obs:  # below the output step: not observable,
-                        self.lux = None  # and the slow average keeps what it last saw,
-                        # until the fast one is fresh; near the bound, where one frame
-                        # in a few is unobservable, the light is then not read at all
-                        self._slow_tick = self._refresh_ticks
-                    else:
-                        tick = self._slow_tick - 1
-                        if tick:  # the slow side samples the fast one (SLOW_EVERY)
-                            self._slow_tick = tick
-                        else:
-                            self._slow_tick = SLOW_EVERY
-                            self._slow_side(self.noise_light, qs2, obs)
-                elif self.noise_fast == 0.0:  # the first pair: the configured prior
-                    sd = d2_scale(self.c2, self._q_m2 * s2)
-                    self.noise_fast = self._m1 * sd
-                    self.noise_light = self._mt * sd  # the slow one: its first sample
             self._z1 = z
-            self._gap_prev = gap
+            if self._chained:  # readings on the last two frames: the plain difference
+                d: float | None = z - 2.0 * z1 + self._z2
+                self._z2 = z1
+            else:
+                d = self._second_difference(z, z1, s2)
+            if d is not None:
+                y = (d if d >= 0.0 else -d) * s
+                w = self._fast_w
+                if w > self._fast_keep:  # still a running mean, after a start
+                    w = self._learning(y, s2, w, last)
+                light = self.noise_light
+                fast = self.noise_fast
+                lim = self._clip_a * fast
+                if y > lim:  # clipped: and beyond the light's cut, not light at all
+                    if y < self._cut_a * light:
+                        self.noise_light = light + w * (y - light)
+                    q_lim = self._clip_step * s
+                    if lim < q_lim:  # a one-step difference counts whole
+                        lim = q_lim if y > q_lim else y
+                    y = lim
+                else:
+                    self.noise_light = light + w * (y - light)
+                fast += w * (y - fast)
+                self.noise_fast = fast
+                qs2 = self._q_m2 * s2
+                c2 = fast * fast * self._kA - qs2
+                self.c2 = c2 if c2 > self._c2_floor else self._c2_floor
+                obs = self._obs2 * s2
+                if c2 < obs:  # below the output step: not observable,
+                    self.lux = None  # and the slow average keeps what it last saw,
+                    # until the fast one is fresh; near the bound, where one frame
+                    # in a few is unobservable, the light is then not read at all
+                    self._slow_tick = self._refresh_ticks
+                else:
+                    tick = self._slow_tick - 1
+                    if tick:  # the slow side samples the fast one (SLOW_EVERY)
+                        self._slow_tick = tick
+                    else:
+                        self._slow_tick = SLOW_EVERY
+                        self._slow_side(self.noise_light, qs2, obs)
             r = self.c2 / s2 + self._q_m2
             if active and t - self._last_accept_ns <= self._stale_ns:
                 x = self.x
@@ -956,6 +944,7 @@ class RangeFilter:
                     self._boot_until_ns = t + self._stale_ns  # then to be measured
         else:
             self._gap += 1
+            self._chained = False
             if active:
                 if self._run_n:
                     gap = self._run_gap + 1
@@ -1042,7 +1031,7 @@ class RangeFilter:
                 if outlier_e:
                     reasons = _OUTLIER_AMBIENT if ambient else _OUTLIER
                 elif zone is _UNRELIABLE:  # ok only where the paper's model holds
-                    if z is not None and (gap or self._run_ended_ns == t):
+                    if z is not None and (self._gap_prev or self._run_ended_ns == t):
                         d = x - z
                         if d * d > self._outlier_drop2:
                             # Back after frames it did not take and 20 cm from its
@@ -1064,6 +1053,39 @@ class RangeFilter:
         if t - self._last_accept_ns > self._stale_ns:
             reasons = (*reasons, Reason.STALE) if reasons else _STALE
         return _new(Estimate, (None, None, self.lux, s, _DROPOUT, reasons, _UNRELIABLE))
+
+    def _second_difference(self, z: float, z1: float, s2: float) -> float | None:
+        """The second difference (metres) of the readings ending at ``z`` where the last
+        two frames did not both bring one: bridged over up to ``MAX_GAP_FRAMES`` frames
+        without a reading (``GAP_NORMALISERS``, noise.py), or None where the chain of
+        readings starts again; its first pair seeds the fast noise average with the
+        configured prior (``s2`` is S^2 of ``z``). Keeps the chain: ``_z2``,
+        ``_links``, ``_gap_prev`` (the frames missing before ``z``) and ``_chained``
+        (the next reading, one frame on, takes the plain difference)."""
+        gap = self._gap
+        self._gap = 0
+        gap_prev = self._gap_prev
+        self._gap_prev = gap
+        z2 = self._z2
+        links = self._links
+        if not links or gap >= MAX_GAP_FRAMES:  # z starts the chain
+            self._links = 1
+            self._chained = False
+            return None
+        self._z2 = z1
+        self._chained = not gap
+        if links == 1:
+            self._links = 2
+            if self.noise_fast == 0.0:  # the first pair: the configured prior
+                sd = d2_scale(self.c2, self._q_m2 * s2)
+                self.noise_fast = self._m1 * sd
+                self.noise_light = self._mt * sd  # the slow one: its first sample
+            return None
+        if gap or gap_prev:  # bridged over the missing frames
+            g1 = gap + 1
+            g2 = gap_prev + 1
+            return ((z - z1) / g1 - (z1 - z2) / g2) * GAP_NORMALISERS[g1][g2]
+        return z - 2.0 * z1 + z2
 
     def _learning(self, y: float, s2: float, w: float, t_state: int | None) -> float:
         """Take the sample ``y`` (|d2| S, metres) while the fast noise average is still a
