@@ -1093,9 +1093,10 @@ class RangeFilter:
         The ``NOISE_BOOT_SAMPLES``-th sample after a start ends the boot (noise.py):
         the fast average starts again from the samples' median, counted as that many
         readings, and the first track runs again over the readings it took with the
-        new reading variance (``_refilter``); where it cannot (a run of outliers
-        pending, or the boot outlasted ``stale_after_s`` or ``BOOT_TRACK_READINGS``),
-        its covariance, built with the prior's variance, is scaled to the new one.
+        new reading variance (``_refilter``), a run of outliers pending among them;
+        where it cannot (the boot outlasted ``stale_after_s`` or
+        ``BOOT_TRACK_READINGS``), its covariance, built with the prior's variance, is
+        scaled to the new one.
         ``s2`` is S^2 of the reading and ``t_state`` (ns) the time the track stands
         at, the last frame's."""
         boot = self._boot
@@ -1111,7 +1112,8 @@ class RangeFilter:
                     sd = d2_scale(c2, qs2)
                 if self.active:
                     boot_track = self._boot_track
-                    if boot_track and not self._run_n:
+                    if boot_track:
+                        self._run_n = 0  # the run's readings are among the boot's
                         self._refilter(boot_track, c2, t_state)
                     else:
                         ratio = (c2 + qs2) / (self.c2 + qs2)  # r_new / r_old: the same S
@@ -1140,7 +1142,9 @@ class RangeFilter:
         with no hold, from a speed prior of ``BOOT_SPEED_SIGMA_M_S``: the boot's
         readings cannot tell its speed under heavy noise. A reading beyond
         ``gate_sigmas`` of the track is left out and ``step_confirm`` of them in a row
-        start it again, as the track would have; the innovation means start again."""
+        start it again, as the track would have; fewer at the end start no run (the
+        track's pending one is dropped: its readings are among these, judged again
+        against the new track). The innovation means start again."""
         q = self._q_m2
         gate2 = self._gate2
         qa = self._qa_lo
