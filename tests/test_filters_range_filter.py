@@ -194,6 +194,30 @@ def test_two_noisy_readings_of_the_same_surface_do_not_restart_a_still_track() -
     assert turned[1].range_m == pytest.approx(3.555, abs=0.02)
 
 
+def test_a_pairs_amps_are_judged_against_the_tracks_mean_amp_not_its_last_reading() -> None:
+    """The amp of one surface jitters from reading to reading. A still track whose last
+    reading came in 12 % low (880 on a surface of 1000) still waits for a third reading
+    of a pair at 1000, the surface's own amp: the pair is judged against the running
+    mean of the track's amps (TRACK_AMP_GAIN), 970 there, not against the 880 alone. A
+    pair at 1130, beyond the share of the mean, is followed on its second reading."""
+
+    def still_then_low() -> RangeFilter:
+        flt = RangeFilter()
+        feed(flt, noisy(random.Random(3), 3.0, 1000, 300), 1000)
+        low = flt.step(3.0, 880, 300 * FRAME_NS)
+        assert low.range_m == pytest.approx(3.0, abs=0.02)
+        return flt
+
+    flt = still_then_low()
+    same = feed(flt, [3.35, 3.37, 3.36], 1000, k0=301)
+    assert same[1].range_m is None
+    assert same[2].range_m == pytest.approx(3.36, abs=0.02)
+
+    flt = still_then_low()
+    other = feed(flt, [3.35, 3.37], 1130, k0=301)
+    assert other[1].range_m == pytest.approx(3.36, abs=0.02)
+
+
 def test_an_edge_is_followed_from_its_first_clean_reading_never_publishing_a_mixed_one() -> None:
     """A dark object at 1 m leaves the beam for a white wall at 5 m: the first two
     readings mix both surfaces (1.72 and 2.92 m, as sim/edges.py draws them) and agree
