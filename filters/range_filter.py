@@ -173,7 +173,8 @@ beyond the share of the last reading's amp on about 9 % of pairs, beyond the mea
 on about 2.5 % (the mean scatters by 0.38 of one reading). The mean follows a new
 surface within a few readings. ``lunad eval``, seeds 3100-3259 (the choice) and
 3260-3419: 1155 and 1195 targets missed against 1166 and 1202 with the last reading's
-amp (bad outputs 8 and 18 against 12 and 20); started again from the reading that
+amp (bad outputs 8 and 18 against 12 and 20); a weight of 1/8 missed 1157 on the
+first, the mean with a share of 10 % 1158; started again from the reading that
 restarts the track, the mean lagged a sweep's corners (docs/filter.md section 4)."""
 
 STILL_SPEED_M_S = 0.5
@@ -497,7 +498,7 @@ class RangeFilter:
         "_stale_ns",
         "_still_ns",
         "_thr2",
-        "_track_amp",
+        "_track_s",
         "_trend_hold",
         "_trend_run",
         "_unrel2",
@@ -619,7 +620,7 @@ class RangeFilter:
         self._run_sum = self._run_rsum = self._run_last = self._run_r = 0.0
         self._run_sign = self._run_mixed = False
         self._run_amp = 0
-        self._track_amp = 0.0  # none yet: the first track's first reading sets it
+        self._track_s = 0.0  # the track's amp as S; the first track's first reading sets it
         self._run_same = False  # every amp of the run on the track's surface
         self._run_gap = 0
         self._run_ended_ns = _NEVER  # the frame whose reading ended a run of outliers
@@ -822,8 +823,8 @@ class RangeFilter:
                     away = self._run_away
                     side = self._run_side + 1 if n and sign == self._run_sign else 1
                     self._run_side = side
-                    ta = self._track_amp  # the surface the track is on (TRACK_AMP_GAIN)
-                    same = abs(amp - ta) < SAME_AMP_SHARE * ta
+                    ts = self._track_s  # the surface the track is on (TRACK_AMP_GAIN)
+                    same = abs(s - ts) < SAME_AMP_SHARE * ts
                     if n and sign == self._run_sign and d * d <= self._gate2 * (r + self._run_r):
                         n += 1
                         same = same and self._run_same
@@ -872,8 +873,8 @@ class RangeFilter:
                         self.p11 = p11
                         outlier_e = e
                 else:
-                    ta = self._track_amp
-                    self._track_amp = ta + TRACK_AMP_GAIN * (amp - ta)
+                    ts = self._track_s
+                    self._track_s = ts + TRACK_AMP_GAIN * (s - ts)
                     if self._run_n:
                         self._run_n = 0
                         self._run_ended_ns = t
@@ -955,7 +956,7 @@ class RangeFilter:
                 if active:  # after a stale stretch: held back until a reading agrees
                     reasons = (*reasons, Reason.STALE) if reasons else _STALE
                 else:  # the first track: its surface's amp, and the noise has until
-                    self._track_amp = amp  # then to be measured
+                    self._track_s = s  # then to be measured
                     if self._boot is not None:
                         self._boot_until_ns = t + self._stale_ns
         else:
