@@ -640,7 +640,8 @@ class RangeFilter:
         self._z1 = self._z2 = 0.0  # the last two readings, metres, where _links says
         self._links = 0  # how many of _z1, _z2 hold readings of the present chain
         self._gap = self._gap_prev = 0
-        self._chained = False  # readings on the last two frames, none missed between
+        # _links == 2 and no frame missed since _z2: the per-frame path's one test
+        self._chained = False
         self._boot: list[float] | None = [] if self._boot_ok else None
         self._boot_track: list[tuple[float, float, int]] | None = [] if self._boot_ok else None
         self._boot_until_ns = _NEVER
@@ -1077,8 +1078,8 @@ class RangeFilter:
         without a reading (``GAP_NORMALISERS``, noise.py), or None where the chain of
         readings starts again; its first pair seeds the fast noise average with the
         configured prior (``s2`` is S^2 of ``z``). Keeps the chain: ``_z2``,
-        ``_links``, ``_gap_prev`` (the frames missing before ``z``) and ``_chained``
-        (the next reading, one frame on, takes the plain difference)."""
+        ``_links``, ``_gap`` and ``_gap_prev`` (the frames missing before ``z``), and
+        ``_chained`` (the next reading, one frame on, takes the plain difference)."""
         gap = self._gap
         self._gap = 0
         gap_prev = self._gap_prev

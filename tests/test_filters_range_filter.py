@@ -155,6 +155,13 @@ def test_real_step_is_followed_within_two_frames() -> None:
     assert all(e.range_m is not None and abs(e.range_m - 1.2) < 0.05 for e in after[1:])
 
 
+def _a_still_track_at_3m() -> RangeFilter:
+    """A filter that has tracked a still surface at 3 m, amp 1000, for 300 frames."""
+    flt = RangeFilter()
+    feed(flt, noisy(random.Random(3), 3.0, 1000, 300), 1000)
+    return flt
+
+
 def test_two_noisy_readings_of_the_same_surface_do_not_restart_a_still_track() -> None:
     """A jump of light raises the noise before the measured noise follows it: readings
     beyond the gate then come in pairs on one side now and then (cloud_flicker: 6.6 to
@@ -162,26 +169,20 @@ def test_two_noisy_readings_of_the_same_surface_do_not_restart_a_still_track() -
     surface's own, which a step moves: a still track waits for a third agreeing reading
     whose amp matches the track's (SAME_AMP_SHARE), and a step whose amp moves, or a
     pair that meets a moving track, is followed on the second reading as before."""
-
-    def still() -> RangeFilter:
-        flt = RangeFilter()
-        feed(flt, noisy(random.Random(3), 3.0, 1000, 300), 1000)
-        return flt
-
-    flt = still()
+    flt = _a_still_track_at_3m()
     pair = feed(flt, [3.35, 3.37], 1000, k0=300)
     assert [e.reasons for e in pair] == [(Reason.OUTLIER,), (Reason.OUTLIER,)]
     assert flt.x == pytest.approx(3.0, abs=0.02)
     back = flt.step(3.0, 1000, 302 * FRAME_NS)
     assert back.range_m == pytest.approx(3.0, abs=0.02)
 
-    flt = still()
+    flt = _a_still_track_at_3m()
     step = feed(flt, [3.35, 3.37, 3.36], 1000, k0=300)
     assert step[1].range_m is None
     assert step[2].range_m == pytest.approx(3.36, abs=0.02)
 
     for amp in (1000 - 130, 1000 + 130):  # beyond the share: another surface
-        flt = still()
+        flt = _a_still_track_at_3m()
         moved = feed(flt, [3.35, 3.37], amp, k0=300)
         assert moved[1].range_m == pytest.approx(3.36, abs=0.02)
 
@@ -202,8 +203,7 @@ def test_a_pairs_amps_are_judged_against_the_tracks_mean_amp_not_its_last_readin
     pair at 1130, beyond the share of the mean, is followed on its second reading."""
 
     def still_then_low() -> RangeFilter:
-        flt = RangeFilter()
-        feed(flt, noisy(random.Random(3), 3.0, 1000, 300), 1000)
+        flt = _a_still_track_at_3m()
         low = flt.step(3.0, 880, 300 * FRAME_NS)
         assert low.range_m == pytest.approx(3.0, abs=0.02)
         return flt
