@@ -29,9 +29,14 @@ evidence for each choice):
    mean m of the innovations over N readings fires when
    m^2 > T^2 (1 - rho) / (1 + rho) times their mean square (rho = 1 - 1/N), once
    with N = ``manoeuvre_frames`` (a sudden manoeuvre) and once with five times as
-   many (a small lag that a noisy reading hides, at T = ``DRIFT_SIGMAS``). When it
-   fires after a quiet stretch, P00 gains the fast mean's squared bias (m^2 less its
-   scatter's share): ``manoeuvre_accel_psd`` alone adds qa dt a frame to the speed's
+   many (a small lag that a noisy reading hides, at T = ``DRIFT_SIGMAS``). On a
+   still track the fast test waits while the noise of the readings rises (the
+   light's fast noise average above the floor's ``MIN_STATS_NEAR``, noise.py): under
+   a jump of light ten noisy readings pass its threshold against a mean square that
+   still lags the jump, and a bias does not move the second differences the noise is
+   read from (docs/filter.md section 4). When it fires after a quiet stretch, P00
+   gains the fast mean's squared bias (m^2 less its scatter's share):
+   ``manoeuvre_accel_psd`` alone adds qa dt a frame to the speed's
    variance, which reaches P00 only over several frames, so the hold's first frames
    would still trust the lagging track. A while after a hold the track as it was
    goes on beside the hold as the still track, and is taken back when the next
@@ -920,7 +925,12 @@ class RangeFilter:
                     mean2 = mean * mean
                     drift2 = drift * drift
                     excess = mean2 - self._man_noise * power  # m^2 less its scatter's share
-                    if mean2 > self._thr2 * power or drift2 > self._drift_thr2 * power:
+                    if (
+                        mean2 > self._thr2 * power
+                        and (  # on a still track, not while the noise rises
+                            self.v * self.v >= _STILL_V2 or self.noise_light <= self._learn_below
+                        )
+                    ) or drift2 > self._drift_thr2 * power:
                         # the still track is judged beside the hold (SHADOW_FRAMES)
                         self._shadow(self.x, self.v, self.p00, self.p01, self.p11, t)
                         if not self._hold and excess > 0.0:
