@@ -125,7 +125,10 @@ reading). It depends on the ratio of the window to the average, which the settin
 keep fixed, not on the noise."""
 MIN_STATS_NEAR = 1.3
 """The slow average learns a reading only while the fast one is within this factor of
-the floor's mean: about two of the fast average's own scatter (14 % of its mean)."""
+the floor's mean: about two of the fast average's own scatter (14 % of its mean). The
+tracker reads the same bound as a rise of the noise: on a still track its fast
+manoeuvre test waits while the light's fast average stands above it (range_filter.py,
+docs/filter.md section 4)."""
 
 FAST_PRIOR_READINGS = 8
 """The fast average starts from the configured prior (``sigma0_m``, ``lux_init``) as if
