@@ -43,6 +43,13 @@ def noisy(rng: random.Random, truth: float, amp: int, n: int, lux: float = 0.0) 
     return [round((truth + rng.gauss(0, s)) * 100) / 100 for _ in range(n)]
 
 
+def squared_errors(est: Sequence[Estimate], truth_m: float) -> tuple[float, int]:
+    """The sum of the published estimates' squared errors against ``truth_m`` (m^2), and
+    how many were published."""
+    errs = [(e.range_m - truth_m) ** 2 for e in est if e.range_m is not None]
+    return sum(errs), len(errs)
+
+
 def test_weak_reading_is_a_dropout_with_no_range() -> None:
     est = RangeFilter().step(None, 40, 0)
     assert est.status is Status.DROPOUT
@@ -844,10 +851,9 @@ def test_the_first_track_is_run_again_with_the_noise_the_boot_measured() -> None
         est = feed(flt, zs[:15], amp)
         speeds.append(abs(flt.v))
         est += feed(flt, zs[15:], amp, k0=15)
-        for e in est:
-            if e.range_m is not None:
-                published += 1
-                sq += (e.range_m - 3.0) ** 2
+        sq_run, n_run = squared_errors(est, 3.0)
+        sq += sq_run
+        published += n_run
     assert sorted(speeds)[50] < 0.6
     assert math.sqrt(sq / published) < 0.037
 
@@ -874,10 +880,9 @@ def test_the_first_track_runs_again_over_a_run_of_outliers_pending_at_the_boots_
             run_at_boots_end = run_at_boots_end or (booting and flt._boot is None and run > 0)
         if run_at_boots_end:
             pending += 1
-            for e in est:
-                if e.range_m is not None:
-                    published += 1
-                    sq += (e.range_m - 3.0) ** 2
+            sq_run, n_run = squared_errors(est, 3.0)
+            sq += sq_run
+            published += n_run
     assert pending >= 15
     assert math.sqrt(sq / published) < 0.042
 
@@ -898,10 +903,9 @@ def test_a_jump_of_the_noise_does_not_fire_a_still_tracks_fast_manoeuvre_test() 
         rng = random.Random(seed)
         flt = RangeFilter()
         zs = noisy(rng, 3.0, amp, 1000, 4500.0) + noisy(rng, 3.0, amp, 250, 58_000.0)
-        for e in feed(flt, zs, amp)[1000:]:
-            if e.range_m is not None:
-                published += 1
-                sq += (e.range_m - 3.0) ** 2
+        sq_run, n_run = squared_errors(feed(flt, zs, amp)[1000:], 3.0)
+        sq += sq_run
+        published += n_run
     assert published > 24_000
     assert math.sqrt(sq / published) < 0.0104
 
