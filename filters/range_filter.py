@@ -14,7 +14,8 @@ evidence for each choice):
    from the fast average, which follows a change of light within about 0.3 s;
    L_hat = (c - sigma0) / k from the slow average (its lag on a ramp of light added
    back), fed only while the noise is above the output step and near its floor
-   (minimum statistics: clutter is not light), is published there and null
+   (minimum statistics: clutter is not light; a wider bound while a still track's
+   light is seen rising, since the floor lags the ramp), is published there and null
    elsewhere, and null until it has been measured (``LIGHT_MEASURED_SPANS`` spans of
    observable readings after a start). After a start the fast average starts again
    from the median of the first ``NOISE_BOOT_SAMPLES`` second differences, and the
@@ -90,6 +91,7 @@ from lunad.filters.noise import (
     MIN_STATS_SPANS,
     NOISE_BOOT_SAMPLES,
     NORMAL_MEDIAN_ABS,
+    RISING_LEARN_NEAR,
     SLOW_EVERY,
     SLOW_RESTART_SPANS,
     SLOW_RISE_RATIO,
@@ -446,6 +448,7 @@ class RangeFilter:
         "_last_t_ns",
         "_latched",
         "_learn_below",
+        "_learn_rising",
         "_links",
         "_lux_enter",
         "_lux_exit",
@@ -635,7 +638,8 @@ class RangeFilter:
         self._slow_w = 1.0  # its first sample replaces the prior: a running mean
         self._fast_w = 1.0 / (1.0 + FAST_PRIOR_READINGS)
         self._span_mins = [_INF] * MIN_STATS_SPANS
-        self._span_min = self._learn_below = _INF  # no floor yet: learn everything
+        self._span_min = _INF
+        self._learn_below = self._learn_rising = _INF  # no floor yet: learn everything
         self._span_i = 0
         self._spans_seen = 0
         self._span_k = self._span_frames
@@ -1226,7 +1230,9 @@ class RangeFilter:
             self._span_min = fast
         slow = self.noise_slow
         slow2 = self._slow_of_slow
-        if fast <= self._learn_below:  # nothing on top of the noise
+        # Nothing on top of the noise; while a still track's light is seen rising, the
+        # floor lags the ramp and the bound is wider (RISING_LEARN_NEAR in noise.py).
+        if fast <= self._learn_below or (self._trend_run > 1 and fast <= self._learn_rising):
             w = self._slow_w
             slow += w * (fast - slow)
             slow2 += w * (slow - slow2)
@@ -1283,6 +1289,7 @@ class RangeFilter:
         self._span_k = self._span_frames
         floor = min(mins) * _INV_MIN_STATS_BIAS
         self._learn_below = MIN_STATS_NEAR * floor
+        self._learn_rising = RISING_LEARN_NEAR * floor
         if seen < LIGHT_MEASURED_SPANS:
             self._spans_seen = seen + 1
             rise, restart = SLOW_RISE_START, floor

@@ -1033,8 +1033,11 @@ def test_the_light_follows_the_sun_coming_out_without_the_slow_averages_lag() ->
     after 2 s). An average lags a ramp by about its length, here a second, 5 klux; the
     slow average is kept twice and the lag the two show is added back beyond a gate
     that narrows once the lag has held beyond it for the slow average's span
-    (``SLOW_TREND_GATE``). From 10 klux on, over 20 starts, ``lux_est`` is within 30 %
-    or 2 klux on 79.0 % of its figures, against 73.4 % with the gate kept whole."""
+    (``SLOW_TREND_GATE``), and while that lag says the light rises the slow average
+    learns within a wider bound of the noise floor, which lags the ramp
+    (``RISING_LEARN_NEAR``). From 10 klux on, over 20 starts, ``lux_est`` is within
+    30 % or 2 klux on 88.9 % of its figures (the worst start 67.6 %), against 79.0 %
+    (48.9 %) with the narrow bound throughout and 73.4 % with the gate kept whole."""
     amp = 470
 
     def share_within(seed: int) -> float:
@@ -1050,7 +1053,7 @@ def test_the_light_follows_the_sun_coming_out_without_the_slow_averages_lag() ->
                 good += abs(est.lux_est - lux) <= max(0.3 * lux, 2000.0)
         return good / judged
 
-    assert sum(share_within(seed) for seed in range(20)) / 20 >= 0.76
+    assert sum(share_within(seed) for seed in range(20)) / 20 >= 0.84
 
 
 def test_after_a_long_still_stretch_the_noise_is_measured_again() -> None:
