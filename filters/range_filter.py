@@ -643,7 +643,9 @@ class RangeFilter:
         self._span_i = 0
         self._spans_seen = 0
         self._span_k = self._span_frames
-        self._slow_tick = SLOW_EVERY
+        # The light's fast average starts from the prior: the slow side waits, as after
+        # a stretch where the light cannot be seen, for LIGHT_WAIT_SPANS of its spans.
+        self._slow_tick = self._refresh_ticks
         self._trend_run = 0  # slow samples in a row with the lag beyond its gate, signed
         self.lux: float | None = None
         self._z1 = self._z2 = 0.0  # the last two readings, metres, where _links says
