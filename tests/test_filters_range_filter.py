@@ -762,7 +762,7 @@ def test_the_floors_own_scatter_is_not_a_rise_of_light() -> None:
     %). One seed's share is chance (the worst of 100 seeds under 10 klux: 67-79 %), so
     the test judges the spread over many."""
     shares = _lux_shares(500.0, 424, 60)
-    assert shares[6] > 0.97
+    assert shares[len(shares) // 10] > 0.97  # the 10th percentile
     shares = _lux_shares(10_000.0, 424, 60)
     assert sum(shares) / len(shares) > 0.97
 
