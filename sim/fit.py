@@ -26,7 +26,7 @@ from lunad.sim.paper_model import CalibratedProfile, CellStats, FloatArray, expe
 from lunad.sim.sweep import PAPER_GRID, RowResult, SweepGrid, expected_sweep, row_mask
 from lunad.sim.table1 import FIT_ROWS, WORST_CASE_ROW, Interval, Table1Row
 
-ERROR_TOLERANCE_REL = 0.25  # issue 3: aim for every row's mean error within 25 %
+ERROR_TOLERANCE_REL = 0.25  # the aim: every row's mean error within 25 % (docs/paper-model.md)
 FAILURE_TOLERANCE_PTS = 5.0  # ... and its failure rate within 5 points
 SOFTMAX_POWER = 6
 CLAIM_WEIGHT = 50.0

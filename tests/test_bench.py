@@ -221,7 +221,7 @@ def test_bad_settings_exit_2_before_measuring(argv: list[str], complaint: str) -
 
 def test_publish_hz_is_judged_against_lunad_at_full_rate() -> None:
     """Low-power mode filters every frame, so its target is half of lunad's own CPU at
-    full rate (issue 20 item 5), not a fraction of the floor loop, which filters none."""
+    full rate (docs/performance.md), not a fraction of the floor loop, which filters none."""
     b = bench.BulkResult(10, 90, 3e6, 2e5, True)
 
     def summary(variant: str, hz: float | None, cpu_us: float) -> bench.ServeSummary:

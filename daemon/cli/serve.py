@@ -12,7 +12,7 @@ from lunad.daemon.cli.source_args import add_source_args, source_overrides
 DESCRIPTION = """\
 Read a TF-Luna, clean every reading and publish it over ZeroMQ.
 
-Each parsed frame becomes one message on topic range/<sensor>; health/<sensor>
+Each parsed frame becomes one message on topic range/<sensor>/; health/<sensor>/
 follows about once a second and at every state change. The daemon keeps running
 through garbage on the line, unplug/replug and a silent sensor, and reports them
 on health. Flags override the config file. A bad file or flag exits with code 78.

@@ -6,7 +6,7 @@ from lunad.daemon.tools.soak.report import SoakReport
 from lunad.daemon.tools.soak.resources import Sample, fit_slope
 from lunad.daemon.tools.soak.schedule import FAULT_KINDS
 
-RECOVERY_LIMIT_S = 5.0  # every fault must recover within this (issue 7)
+RECOVERY_LIMIT_S = 5.0  # every fault must recover within this (docs/soak.md, PASS rule 2)
 WAITING_LIMIT_S = 2.0  # a silent sensor shows state waiting within this (docs/architecture.md)
 RSS_LIMIT_MIB_PER_H = 1.0
 RSS_NOISE_FLOOR_KIB = 256.0  # below this, growth in a short window is allocator noise
