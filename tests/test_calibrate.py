@@ -318,32 +318,23 @@ def test_a_strong_close_target_gives_amp_ref_but_no_sigma0(
     assert r.returncode == 1 and "sigma0_m not measured" in r.stdout, r.stderr
 
 
-def test_calibrate_warns_when_the_distance_disagrees(
-    device: Callable[..., PtyDevice], helpers: Any
+def test_a_distance_that_disagrees_fails_and_writes_nothing(
+    device: Callable[..., PtyDevice], tmp_path: Path, helpers: Any
 ) -> None:
-    dev = device(
-        rate_hz=250,
-        output_enabled=False,
-        truth=Truth(distance_m=2.0, reflectivity=0.9, angle_deg=0.0, lux=0.0),
-    )
-    r = subprocess.run(
-        [
-            *helpers.lunad,
-            "calibrate",
-            "--device",
-            dev.path,
-            "--reflectivity",
-            "0.9",
-            "--distance",
-            "3.0",
-            "--seconds",
-            "0.5",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=30,
-    )
-    assert r.returncode == 0 and "warning: the sensor reads 2.0" in r.stderr
+    """A target at 2 m calibrated as if at 3 m would write an amp_ref 2.25x too small:
+    the run says so, exits 1 and leaves the config file as it was."""
+    truth = Truth(distance_m=2.0, reflectivity=0.9, angle_deg=0.0, lux=0.0)
+    dev = device(rate_hz=250, output_enabled=False, truth=truth)
+    cfg = tmp_path / "front.toml"
+    before = f'[source]\ndevice = "{dev.path}"\n\n[filter]\namp_ref = 1234.0\n'
+    cfg.write_text(before)
+    wrong = Truth(distance_m=3.0, reflectivity=0.9, angle_deg=0.0, lux=0.0)
+    argv = calibrate_argv(helpers, dev, wrong, "--config", str(cfg), "--write", seconds="0.5")
+    r = subprocess.run(argv, capture_output=True, text=True, timeout=30)
+    assert r.returncode == 1, r.stderr
+    assert "the sensor reads 2.0" in r.stderr and "nothing written" in r.stderr
+    assert "amp_ref" in r.stdout  # still reported, for the user to see
+    assert cfg.read_text() == before
 
 
 def test_write_without_config_is_a_usage_error(helpers: Any) -> None:

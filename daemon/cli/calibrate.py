@@ -63,10 +63,13 @@ sigma0 the first run wrote. Until sigma0 is measured, lux_est rests on the datas
 
 Put the target square to the beam (or give --angle), fill the 2 degree beam with it
 (the spot is 3.5 cm wide per metre), and keep the scene still while it measures.
-Ctrl-C aborts: nothing is written. Exit 1: too few readings, or the figure --lux or
---fit-k asks for could not be measured (amp_ref is still reported and written). Exit
-69: the port is in use by another process, usually the daemon (`sudo systemctl stop
-lunad@NAME` first; the message names the holder).
+Ctrl-C aborts: nothing is written. Exit 1: the port cannot be opened or is lost;
+too few readings; the sensor reads a distance more than 10 % (and 5 cm) off
+--distance, so the target is not where the figures assume (they are reported, and
+--write writes nothing); or the figure --lux or --fit-k asks for could not be
+measured (amp_ref is still reported and written). Exit 69: the port is in use by
+another process, usually the daemon (`sudo systemctl stop lunad@NAME` first; the
+message names the holder).
 """
 
 EPILOG = """\
@@ -82,7 +85,12 @@ examples:
 
 AMP_MIN_VALID = 100  # below: the sensor reports no distance (M05 p.16)
 AMP_AMBIENT = 32768  # above: ambient overexposure (M05 p.14)
-DISTANCE_TOLERANCE = 0.1  # relative disagreement with --distance that earns a warning
+DISTANCE_TOLERANCE = 0.1
+"""A median distance further than this share of --distance (and 5 cm) from it: the
+target is not where the figures assume (another surface fills the beam, or a wrong
+--distance), so S, and every figure divided by it, is wrong; nothing is written."""
+DISTANCE_SLACK_M = 0.05  # ... plus the readings' own centimetres
+DISTANCE_EXIT = 1
 MIN_READINGS = 20
 FILTER_TABLE: dict[str, Any] = {"filter": {}}  # what _table_header gives for [filter]
 
@@ -564,12 +572,16 @@ def run(args: argparse.Namespace) -> int:
         print(f"lunad calibrate: {exc}", file=sys.stderr)
         return 1
     print("\n".join(report(cal, args, filter_cfg)))
-    if abs(cal.median_distance_m - args.distance) > DISTANCE_TOLERANCE * args.distance + 0.05:
+    off = abs(cal.median_distance_m - args.distance)
+    if off > DISTANCE_TOLERANCE * args.distance + DISTANCE_SLACK_M:
+        written = ": nothing written" if args.write else ""
         print(
-            f"warning: the sensor reads {cal.median_distance_m:.3f} m, not {args.distance:g} m: "
-            "is the target where you say, and does it fill the beam?",
+            f"lunad calibrate: the sensor reads {cal.median_distance_m:.3f} m, not "
+            f"{args.distance:g} m, so the figures above are for a target that is not there"
+            f"{written}; is the target where you say, and does it fill the beam?",
             file=sys.stderr,
         )
+        return DISTANCE_EXIT
     code = 0
     if cal.not_measured is not None and (args.lux is not None or args.fit_k):
         code = NOISE_ASKED_EXIT
