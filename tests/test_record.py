@@ -172,6 +172,32 @@ def test_corrupt_last_record_is_skipped(tmp_path: Path, offset_from_end: int) ->
     assert torn == 1
 
 
+def test_a_recording_damaged_mid_file_is_told_from_one_cut_short(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A corrupt record in the middle loses the rest of the file: logged at INFO as a
+    torn record, it read like the harmless tail of a power cut."""
+    path = tmp_path / "mid.lunarec"
+    record(path, CHUNKS)
+    whole = path.read_bytes()
+    path.write_bytes(whole[:-5])  # the last record cut short: a power cut
+    with caplog.at_level("INFO"), Replay(path) as rep:
+        assert list(rep) == CHUNKS[:-1]
+        assert rep.torn_records == 1 and not rep.damaged
+    assert [r.levelname for r in caplog.records] == ["INFO"]
+    assert "torn last record" in caplog.text
+    caplog.clear()
+    damaged = bytearray(whole)
+    first = len(whole) - sum(RECORD_OVERHEAD + len(c.data) for c in CHUNKS)
+    damaged[first + RECORD_OVERHEAD] ^= 0x01  # the first record's data: its CRC fails
+    path.write_bytes(bytes(damaged))
+    with caplog.at_level("INFO"), Replay(path) as rep:
+        assert list(rep) == []
+        assert rep.damaged and rep.trailing_bytes == len(whole) - first
+    assert [r.levelname for r in caplog.records] == ["WARNING"]
+    assert f"damaged: a corrupt record at byte {first}" in caplog.text
+
+
 def test_garbage_length_does_not_swallow_memory(tmp_path: Path) -> None:
     path = tmp_path / "len.lunarec"
     record(path, CHUNKS[:1])

@@ -189,6 +189,10 @@ class _ScanState:
     good_end: int
     torn_records: int = 0
     trailing_bytes: int = 0
+    damaged: bool = False
+    """The bad record is not a last one cut short (a power cut): a length beyond
+    ``MAX_RECORD_BYTES``, or a whole record with a wrong CRC and more bytes after it.
+    The file was damaged, and everything after it is lost."""
 
 
 def _records(f: _ReadableFile, state: _ScanState) -> Iterator[Chunk]:
@@ -203,21 +207,24 @@ def _records(f: _ReadableFile, state: _ScanState) -> Iterator[Chunk]:
         head = f.read(_RECORD.size) or b""
         if not head:
             return
+        whole = False  # the bad record is all there, not cut short by the file's end
+        length = 0
         if len(head) == _RECORD.size:
             t_mono_ns, length, crc = _RECORD.unpack(head)
-            if length <= MAX_RECORD_BYTES:
+            whole = length > MAX_RECORD_BYTES
+            if not whole:
                 data = f.read(length) or b""
-                if (
-                    len(data) == length
-                    and zlib.crc32(data, zlib.crc32(head[:_RECORD_CRC_SPAN])) == crc
-                ):
+                whole = len(data) == length
+                if whole and zlib.crc32(data, zlib.crc32(head[:_RECORD_CRC_SPAN])) == crc:
                     pos += _RECORD.size + length
                     state.good_end = pos
                     yield Chunk(data, t_mono_ns)
                     continue
+        bad_end = f.tell()
         f.seek(0, os.SEEK_END)
         state.torn_records = 1
         state.trailing_bytes = f.tell() - pos
+        state.damaged = whole and (length > MAX_RECORD_BYTES or f.tell() > bad_end)
         return
 
 
@@ -472,6 +479,11 @@ class Replay:
         return self._state.torn_records
 
     @property
+    def damaged(self) -> bool:
+        """The bad record was not a last one cut short: the file was damaged."""
+        return self._state.damaged
+
+    @property
     def trailing_bytes(self) -> int:
         """Bytes after the last good record that could not be read."""
         return self._state.trailing_bytes
@@ -484,12 +496,23 @@ class Replay:
             self.records += 1
             self.bytes += len(chunk.data)
             yield chunk
-        if self._state.torn_records:
-            log.info(
-                "%s: stopped before a torn or corrupt record at byte %d (%d bytes skipped)",
+        state = self._state
+        if state.damaged:
+            log.warning(
+                "%s: damaged: a corrupt record at byte %d; the %d bytes from there on "
+                "(%.0f %% of the file) cannot be read and were skipped",
                 self.path,
-                self._state.good_end,
-                self._state.trailing_bytes,
+                state.good_end,
+                state.trailing_bytes,
+                100.0 * state.trailing_bytes / max(1, state.good_end + state.trailing_bytes),
+            )
+        elif state.torn_records:
+            log.info(
+                "%s: stopped before a torn last record at byte %d (%d bytes skipped: a "
+                "recording cut short, as by a power cut)",
+                self.path,
+                state.good_end,
+                state.trailing_bytes,
             )
 
     def close(self) -> None:
