@@ -40,6 +40,7 @@ from lunad.protocol.commands import BAUD_RATES, FRAME_RATES_HZ
 from lunad.protocol.curve_keys import read_key_file
 from lunad.protocol.file_kind import file_kind
 from lunad.protocol.frame import OutputFormat
+from lunad.protocol.messages import SensorName
 
 DEFAULT_ENDPOINT = "tcp://127.0.0.1:7781"
 DEFAULT_DEVICE = "/dev/serial0"
@@ -121,7 +122,7 @@ def _is_number(annotation: Any) -> bool:
 class SensorSection(_Section):
     """[sensor]: what this sensor is called and how to set it up at start."""
 
-    name: Annotated[str, Field(pattern=r"^[A-Za-z0-9_.-]{1,64}$")] = "tfluna"
+    name: SensorName = "tfluna"
     frame_rate_hz: int = 100
     configure: bool = True
     output_format: Literal["cm", "mm"] = "cm"
@@ -142,6 +143,23 @@ class SensorSection(_Section):
         if v == 0 or v not in FRAME_RATES_HZ:
             raise ValueError("must be 500/n Hz for an integer n: 250, 166, 125, 100, ..., 1")
         return v
+
+
+def _serial_url_schemes() -> tuple[str, ...]:
+    """The URL schemes ``serial.serial_for_url`` opens: its ``serial.urlhandler``
+    package's ``protocol_<scheme>`` modules (socket, rfc2217, loop, spy, ...)."""
+    import pkgutil
+
+    import serial.urlhandler
+
+    prefix = "protocol_"
+    return tuple(
+        sorted(
+            m.name[len(prefix) :]
+            for m in pkgutil.iter_modules(serial.urlhandler.__path__)
+            if m.name.startswith(prefix)
+        )
+    )
 
 
 class SourceSection(_Section):
@@ -203,6 +221,22 @@ class SourceSection(_Section):
                 "it would replay its own output without end"
             )
         return self
+
+    @field_validator("device")
+    @classmethod
+    def _device(cls, v: str) -> str:
+        """A path, or a URL pyserial knows (``serial_for_url``): an unknown scheme can
+        never open, and would be retried every 2 s for ever."""
+        if "://" not in v:
+            return v
+        scheme = v.split("://", 1)[0].lower()
+        known = _serial_url_schemes()
+        if scheme not in known:
+            raise ValueError(
+                f"unknown URL scheme {scheme!r}: a device path such as /dev/serial0, or "
+                f"one of pyserial's URLs ({', '.join(s + '://' for s in known)})"
+            )
+        return v
 
     @field_validator("baud")
     @classmethod
@@ -497,13 +531,20 @@ def load_config(path: Path | str | None, overrides: dict[str, Any] | None = None
             are ignored.
 
     Raises:
-        ConfigError: the file is missing or not TOML, or a field is wrong.
+        ConfigError: the file is missing, not TOML or holds no settings, or a field is
+            wrong.
     """
     data: dict[str, Any] = {}
     origin = "defaults"
     if path is not None:
         origin = str(path)
         data = _parse_toml(_read_config_text(path), path)
+        if not data:  # all defaults: on a reload, another device and endpoint at once
+            raise ConfigError(
+                f"config file {path} (--config): holds no settings (empty, or only "
+                "comments): a file an editor truncated? Leave --config out to run on the "
+                "built-in defaults"
+            )
     for dotted, value in (overrides or {}).items():
         if value is None:
             continue

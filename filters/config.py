@@ -168,7 +168,8 @@ class FilterConfig:
                 "accel_psd",
             )
             if not (value >= 0 if zero_ok else value > 0):
-                raise ValueError(f"FilterConfig.{f.name} must be positive, got {value!r}")
+                must = "0 or more" if zero_ok else "positive"
+                raise ValueError(f"FilterConfig.{f.name} must be {must}, got {value!r}")
             if isinstance(value, float) and not (
                 VALUE_MIN <= value <= VALUE_MAX or (zero_ok and value == 0.0)
             ):
@@ -183,6 +184,12 @@ class FilterConfig:
         for name in ("manoeuvre_frames", "noise_frames", "noise_slow_frames"):
             if getattr(self, name) < 2:
                 raise ValueError(f"FilterConfig.{name} must be at least 2 readings")
+        if self.noise_slow_frames < self.noise_frames:
+            raise ValueError(
+                f"FilterConfig.noise_slow_frames must be at least noise_frames "
+                f"({self.noise_frames}), got {self.noise_slow_frames}: the slow noise "
+                "average is the longer one (docs/filter.md section 3)"
+            )
         if self.noise_jump_ratio <= 1.0:
             raise ValueError(
                 f"FilterConfig.noise_jump_ratio must be above 1, got {self.noise_jump_ratio!r}"

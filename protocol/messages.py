@@ -48,7 +48,9 @@ ZoneName = Literal["stable", "marginal", "unreliable"]
 State = Literal["connected", "waiting", "reconnecting", "stopped"]
 NoiseModel = Literal["default", "configured"]
 RunId = Annotated[str, Field(pattern=r"^[0-9a-f]{16}$")]
-SensorName = Annotated[str, Field(pattern=r"^[A-Za-z0-9_.-]{1,64}$")]
+SENSOR_NAME_PATTERN = r"^[A-Za-z0-9_.-]{1,64}$"
+"""A sensor name: part of the topics range/NAME/ and health/NAME/, so no '/'."""
+SensorName = Annotated[str, Field(pattern=SENSOR_NAME_PATTERN)]
 U64 = Annotated[int, Field(ge=0, le=U64_MAX)]
 I64 = Annotated[int, Field(ge=-I64_MAX - 1, le=I64_MAX)]
 

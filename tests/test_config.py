@@ -62,6 +62,9 @@ def test_file_and_flags(tmp_path: Path) -> None:
         ("[source]\nrate_hz = 999\n", {}, "source.rate_hz: unknown key; the frame rate is"),
         ("", {"source.record": ""}, "source.record (--record): String should have at least"),
         ("", {"source.kind": "replay", "source.path": ""}, "source.path (--replay): String"),
+        ("", {"source.device": "foo://bar"}, "source.device (--device): unknown URL scheme 'foo'"),
+        ("[filter]\nlux_init = -100\n", {}, "lux_init must be 0 or more, got -100"),
+        ("[filter]\nnoise_frames = 300\n", {}, "noise_slow_frames must be at least noise_frames"),
         ("[filter]\namp_ref = 1" + "0" * 400 + "\n", {}, "amp_ref: must be a finite number"),
     ],
 )
@@ -69,7 +72,7 @@ def test_errors_name_the_field(tmp_path: Path, text: str, overrides: dict, needl
     f = tmp_path / "bad.toml"
     f.write_text(text)
     with pytest.raises(ConfigError) as info:
-        load_config(f, overrides)
+        load_config(f if text else None, overrides)  # flags alone: no file
     assert needle in str(info.value)
 
 
@@ -164,3 +167,11 @@ def test_example_config_loads_and_lists_every_filter_key() -> None:
     text = path.read_text()
     missing = [f.name for f in dataclasses.fields(FilterConfig) if f"\n{f.name} =" not in text]
     assert not missing, f"example config lacks filter keys {missing}"
+
+
+@pytest.mark.parametrize(
+    "device", ["/dev/serial0", "socket://127.0.0.1:7000", "LOOP://", "spy:///dev/ttyAMA0"]
+)
+def test_a_device_is_a_path_or_a_url_pyserial_opens(device: str) -> None:
+    """``foo://bar`` was retried every 2 s for ever ("protocol 'foo' not known")."""
+    assert load_config(None, {"source.device": device}).source.device == device

@@ -236,6 +236,38 @@ def test_sighup_to_a_config_replaced_by_a_fifo_keeps_the_running_one(
     assert d.stop() == 0
 
 
+@pytest.mark.parametrize("text", ["", "\n  \n", "# all commented out\n# [sensor]\n"])
+def test_sighup_to_a_config_with_no_settings_keeps_the_running_one(
+    start_daemon: Any, endpoint: str, tmp_path: Path, text: str
+) -> None:
+    """A file an editor truncated was read as all defaults: the reload moved the daemon
+    to /dev/serial0, tcp://127.0.0.1:7781 and the name tfluna, and its subscribers on
+    the configured endpoint lost the stream with one INFO line to say why."""
+    f = tmp_path / "lunad.toml"
+    f.write_text(
+        f'[sensor]\nname = "front"\n[source]\ndevice = "{tmp_path / "none"}"\n'
+        f'[publish]\nendpoint = "{endpoint}"\n'
+    )
+    d = start_daemon("--config", str(f))
+    with Subscriber(endpoint) as sub:
+        wait_for_health(sub, d.proc, lambda m: m.state == "reconnecting")
+        replace_with_text(f, text)
+        d.proc.send_signal(signal.SIGHUP)
+        wait_for_log(d, "SIGHUP: keeping the running configuration")
+        assert "holds no settings" in d.log
+        after = time.monotonic_ns()
+        health = wait_for_health(sub, d.proc, lambda m: m.t_mono_ns > after)
+        assert health.sensor == "front"  # still the configured sensor, on its endpoint
+    assert d.stop() == 0
+
+
+def test_serve_refuses_a_config_with_no_settings(tmp_path: Path, helpers: Any) -> None:
+    f = tmp_path / "lunad.toml"
+    f.write_text("# nothing set\n")
+    r = serve(helpers, "--config", str(f))
+    assert_refused(r, f"config file {f} (--config): holds no settings", "built-in defaults")
+
+
 # --- 3. TOML the parser cannot take -------------------------------------------------------
 
 
