@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 import subprocess
 import sys
 from collections.abc import Callable
@@ -64,3 +65,37 @@ def test_watch_every_thins_each_output_mode(
     else:
         readings = [line for line in r.stdout.splitlines() if line.startswith("#")]
     assert len(readings) == 5
+
+
+def test_watch_stopped_by_sigterm_reports_what_came(
+    device: Callable[..., PtyDevice],
+    start_daemon: Any,
+    endpoint: str,
+    subscriber: Subscriber,
+    helpers: Any,
+) -> None:
+    """``timeout 10 lunad watch`` (SIGTERM) ended with 143 and no summary, where Ctrl-C
+    gives "N readings, M lost"."""
+    dev = device(rate_hz=250, output_enabled=False)
+    start_daemon("--device", dev.path, "--publish", endpoint, "--rate", "250")
+    helpers.wait_for(subscriber, helpers.is_range, timeout=helpers.startup_s)
+    proc = subprocess.Popen(
+        [*LUNAD, "watch", "--connect", endpoint],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None
+        lines = [proc.stdout.readline() for _ in range(30)]  # health lines come between
+        assert sum(line.startswith("#") for line in lines) >= 20, lines
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 0, err
+    summary = err.strip().splitlines()[-1]
+    readings = int(summary.split()[0])
+    assert readings >= 20 and summary == f"{readings} readings, 0 lost (seq gaps)"

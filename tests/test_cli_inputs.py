@@ -1,10 +1,13 @@
-"""Bad command-line input to demo, sim, sweep and watch: one line naming the flag, the
-project's exit code, and nothing started (no virtual sensor, no daemon, no fit)."""
+"""Bad command-line input to demo, sim, sweep, watch, eval and keys: one line naming
+the flag, the project's exit code, and nothing started (no virtual sensor, no daemon,
+no fit)."""
 
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -13,17 +16,45 @@ import pytest
 from lunad.daemon.errors import EX_CONFIG
 
 
-def test_demo_rejects_every_below_one(helpers: Any) -> None:
-    """``--every 0`` used to reach watch()'s ``readings % every`` and crash mid-demo."""
-    r = subprocess.run(
-        [*helpers.lunad, "demo", "--every", "0", "--duration", "3"],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+@pytest.mark.parametrize(
+    ("flags", "complaint"),
+    [
+        (["--every", "0"], "argument --every: expected an integer >= 1, got 0"),
+        (["--rate", "7000"], "--rate must be 500/n Hz (250, 166, 125, 100, ..., 1), got 7000"),
+        (["--rate", "240"], "--rate must be 500/n Hz (250, 166, 125, 100, ..., 1), got 240"),
+        (["--duration", "nan"], "argument --duration: expected a positive number, got 'nan'"),
+        (["--duration", "-1"], "argument --duration: expected a positive number, got '-1'"),
+        (["--duration", "0.5"], "--duration must be at least 2 s"),
+    ],
+    ids=lambda v: " ".join(v) if isinstance(v, list) else "",
+)
+def test_demo_refuses_a_bad_option_before_it_starts(
+    helpers: Any, flags: list[str], complaint: str
+) -> None:
+    """A rate the daemon refuses started the virtual sensor, waited out the demo and
+    reported the daemon's exit 78 as if SIGTERM had stopped it; ``--duration nan`` ran
+    for ever, and ``--every 0`` reached watch()'s ``readings % every`` mid-demo."""
+    r = run_lunad(helpers, "demo", *flags)
     assert r.returncode == 2, r.stderr
-    assert r.stderr == "lunad demo: --every must be at least 1\n"
+    assert complaint in r.stderr and "Traceback" not in r.stderr
     assert r.stdout == ""  # nothing started: no virtual sensor line, no daemon
+
+
+def test_demo_tells_a_daemon_that_exited_by_itself() -> None:
+    """The demo's summary said "exited ... after SIGTERM" of a daemon that had exited
+    with 78 long before: a real child that ends by itself is not signalled."""
+    from lunad.daemon.cli.demo import _stop
+
+    child = subprocess.Popen([sys.executable, "-c", "raise SystemExit(78)"])
+    child.wait(timeout=30)
+    assert _stop(child) == (78, True)
+    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    try:
+        code, by_itself = _stop(child)
+    finally:
+        if child.poll() is None:
+            child.kill()
+    assert (code, by_itself) == (-signal.SIGTERM, False)
 
 
 def test_sim_truth_out_in_a_missing_directory(tmp_path: Path, helpers: Any) -> None:
@@ -178,3 +209,49 @@ def test_sweep_fit_refuses_the_sweep_options(
     assert r.stderr.startswith(f"lunad sweep: error: argument --fit: not allowed with {given} (")
     assert r.stderr.count("\n") == 1 and r.stdout == ""
     assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.parametrize(
+    ("flags", "complaint"),
+    [
+        (["--duration", "nan"], "argument --duration: expected a positive number, got 'nan'"),
+        (["--duration", "-1"], "argument --duration: expected a positive number, got '-1'"),
+        (["--count", "0"], "argument --count: expected an integer >= 1, got 0"),
+        (["--every", "0"], "argument --every: expected an integer >= 1, got 0"),
+        (["--sensor", "a/b"], "argument --sensor: expected 1-64 letters, digits"),
+    ],
+    ids=lambda v: " ".join(v) if isinstance(v, list) else "",
+)
+def test_watch_refuses_a_bad_option(helpers: Any, flags: list[str], complaint: str) -> None:
+    """``--duration nan`` watched for ever, ``--count 0`` and a sensor name no topic can
+    carry printed "0 readings" as if the daemon were silent."""
+    r = run_lunad(helpers, "watch", "--connect", "tcp://127.0.0.1:7781", *flags)
+    assert r.returncode == 2, r.stderr
+    assert complaint in r.stderr and r.stdout == ""
+
+
+@pytest.mark.parametrize(
+    ("flags", "complaint"),
+    [
+        (["--summary", "--format", "json"], "--summary is a table; --format json gives every run"),
+        (["--check", "--true-noise"], "--check judges lunad as the daemon runs it"),
+    ],
+    ids=["summary json", "check true-noise"],
+)
+def test_eval_flags_that_do_not_go_together_are_a_usage_error(
+    helpers: Any, flags: list[str], complaint: str
+) -> None:
+    """They exited 78, the code of a bad scenario or config file, not 2."""
+    r = run_lunad(helpers, "eval", *flags)
+    assert r.returncode == 2, r.stderr
+    assert complaint in r.stderr and r.stdout == ""
+
+
+def test_keys_into_a_file_says_it_is_not_a_directory(tmp_path: Path, helpers: Any) -> None:
+    """It said "cannot write ...: File exists", of a folder it was asked to make."""
+    f = tmp_path / "server"
+    f.write_text("mine\n")
+    r = run_lunad(helpers, "keys", "server", str(f))
+    assert r.returncode == 1, r.stderr
+    assert r.stderr == f"lunad keys: {f}: not a directory: give the folder the key pair goes in\n"
+    assert f.read_text() == "mine\n"

@@ -285,7 +285,7 @@ def test_cli_true_noise_is_said_and_tells_lunad_the_noise(
     assert "told each reading's true sigma" in capsys.readouterr().out
     assert run_cli(argv) == 0
     assert "true sigma" not in capsys.readouterr().out
-    assert run_cli([*argv, "--true-noise", "--check"]) == cmd_eval.EXIT_CONFIG
+    assert run_cli([*argv, "--true-noise", "--check"]) == cmd_eval.EXIT_USAGE
     scenario = load_scenario("cloud_flicker")
     run = ev.simulate(scenario, "paper", 1.0, 7)
     learnt = ev.evaluate_run(scenario, run, "paper", 7).vs_oracle
@@ -384,4 +384,4 @@ def test_the_summary_tallies_every_miss(capsys: pytest.CaptureFixture[str]) -> N
     argv = ["--scenario", "static", "--duration", "1", "--summary"]
     assert run_cli(argv) == 0
     assert "2 runs (1 scenarios x 2 worlds x 1 seeds)" in capsys.readouterr().out
-    assert run_cli([*argv, "--format", "json"]) == cmd_eval.EXIT_CONFIG
+    assert run_cli([*argv, "--format", "json"]) == cmd_eval.EXIT_USAGE

@@ -13,6 +13,8 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from lunad.daemon.cli.arg_types import int_at_least, positive_float
+
 if TYPE_CHECKING:
     from lunad.daemon.cli.signals import Interrupts
     from lunad.sim.scenario import Scenario
@@ -28,6 +30,11 @@ cleanly; 1 when it did not, or the virtual sensor failed; 2 for a bad option; 12
 the signal's number (130 for Ctrl-C, 143 for SIGTERM) when stopped early, after the
 daemon and the virtual sensor are stopped and the temporary folder removed.
 """
+
+MIN_DURATION_S = 2.0
+"""Shorter, and the demo stops the daemon while it still starts (about 0.2 s on a PC,
+1-1.3 s on a Pi Zero 2, docs/performance.md) and holds its first readings back until
+their noise is measured (docs/messages.md)."""
 
 EPILOG = """\
 examples:
@@ -45,25 +52,50 @@ def add_parser(sub: Any) -> None:
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--duration", type=float, default=8.0, metavar="S", help="seconds (default 8)")
-    p.add_argument("--rate", type=int, default=100, metavar="HZ", help="frame rate (default 100)")
+    p.add_argument(
+        "--duration",
+        type=positive_float,
+        default=8.0,
+        metavar="S",
+        help=f"seconds, at least {MIN_DURATION_S:g} (default 8)",
+    )
+    p.add_argument(
+        "--rate",
+        type=int,
+        default=100,
+        metavar="HZ",
+        help="frame rate, 500/n Hz: 250, 166, 125, 100, ..., 1 (default 100)",
+    )
     p.add_argument(
         "--scenario",
         default="obstacles",
         metavar="NAME|FILE",
         help="what the sensor sees, looped (default: obstacles stepping in and out)",
     )
-    p.add_argument("--every", type=int, default=20, metavar="N", help="print every Nth reading")
+    p.add_argument(
+        "--every", type=int_at_least(1), default=20, metavar="N", help="print every Nth reading"
+    )
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the demo; 0 when the daemon published every frame the sensor sent."""
     from lunad.daemon.cli.signals import Interrupts
+    from lunad.protocol.commands import FRAME_RATES_HZ
     from lunad.sim.scenario import ScenarioError, load_scenario
 
-    if args.every < 1:  # watch() divides by it, after the sensor and the daemon are up
-        print("lunad demo: --every must be at least 1", file=sys.stderr)
+    if args.rate == 0 or args.rate not in FRAME_RATES_HZ:  # the daemon would refuse it
+        print(
+            f"lunad demo: --rate must be 500/n Hz (250, 166, 125, 100, ..., 1), got {args.rate}",
+            file=sys.stderr,
+        )
+        return 2
+    if args.duration < MIN_DURATION_S:
+        print(
+            f"lunad demo: --duration must be at least {MIN_DURATION_S:g} s (the daemon starts"
+            f" and measures the noise first), got {args.duration:g}",
+            file=sys.stderr,
+        )
         return 2
     try:
         scenario = load_scenario(args.scenario)
@@ -138,7 +170,7 @@ def _run(args: argparse.Namespace, scenario: Scenario, interrupts: Interrupts) -
                 finally:
                     quiet.cancel()
                     t0 = time.monotonic()
-                    code = None if daemon is None else _stop(daemon)
+                    code, by_itself = (None, False) if daemon is None else _stop(daemon)
                 stop_s = time.monotonic() - t0
                 sent = dev.frames_sent
                 junk = dev.garbage_bytes
@@ -154,16 +186,24 @@ def _run(args: argparse.Namespace, scenario: Scenario, interrupts: Interrupts) -
             f"\nThe virtual sensor sent {sent} good frames and {junk} garbage bytes.\n"
             f"The daemon published {published} readings (seq 0..{published - 1}); the watcher,"
             f" which joined late, received {seen.readings} with {seen.lost} lost.\n"
-            f"The daemon exited with code {code} {stop_s:.2f} s after SIGTERM."
+            + (
+                f"The daemon exited by itself, with code {code}, before the demo's end."
+                if by_itself
+                else f"The daemon exited with code {code} {stop_s:.2f} s after SIGTERM."
+            )
         )
     return 0 if code == 0 and published == sent else 1
 
 
-def _stop(daemon: subprocess.Popen[bytes]) -> int:
-    """SIGTERM, as systemd stops it; killed after 5 s. Returns its exit code."""
+def _stop(daemon: subprocess.Popen[bytes]) -> tuple[int, bool]:
+    """SIGTERM, as systemd stops it; killed after 5 s. Returns its exit code, and
+    whether it had exited by itself before (its log on stderr says why)."""
+    code = daemon.poll()
+    if code is not None:
+        return code, True
     daemon.send_signal(signal.SIGTERM)
     try:
-        return daemon.wait(timeout=5)
+        return daemon.wait(timeout=5), False
     except subprocess.TimeoutExpired:
         daemon.kill()
-        return daemon.wait()
+        return daemon.wait(), False

@@ -12,17 +12,18 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import math
 import tomllib
 from dataclasses import asdict
 from typing import Any
 
+from lunad.daemon.cli.arg_types import int_at_least, positive_float
 from lunad.daemon.errors import EX_CONFIG, ConfigError
 
 log = logging.getLogger(__name__)
 
 EXIT_CONFIG = EX_CONFIG  # a bad scenario name or file, like any bad flag (docs/architecture.md)
 EXIT_TARGETS_MISSED = 1
+EXIT_USAGE = 2  # flags that do not go together, as argparse exits for a bad one
 MAX_SEED_RANGE = 10_000
 """The most seeds one ``--seed A-B`` names: 240,000 runs, days of CPU."""
 ROBUST_ORACLE_RATIO = 1.5
@@ -77,17 +78,8 @@ Comparing two filters: run both on the same seeds, 100 or more of them. On 40 se
 next (docs/filter.md, "Seeds beyond the three").
 
 exit status: 0 done (targets met or not, without --check); 1 a target missed, with
---check; 2 a bad option; 78 a bad scenario, config file or --set."""
-
-
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not (value > 0 and math.isfinite(value)):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return value
+--check; 2 a bad option, or options that do not go together; 78 a bad scenario,
+config file or --set."""
 
 
 def _seeds(text: str) -> range:
@@ -107,16 +99,6 @@ def _seeds(text: str) -> range:
     if hi - lo >= MAX_SEED_RANGE:
         raise argparse.ArgumentTypeError(f"a range of at most {MAX_SEED_RANGE} seeds, got {text!r}")
     return range(lo, hi + 1)
-
-
-def _jobs(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
-    return value
 
 
 def _setting(text: str) -> tuple[str, Any]:
@@ -151,7 +133,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--noise-scale",
-        type=_positive,
+        type=positive_float,
         default=1.0,
         metavar="F",
         help="multiply the sensor's noise constants by F (default 1; the filter is not told)",
@@ -171,7 +153,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--duration",
-        type=_positive,
+        type=positive_float,
         metavar="SECONDS",
         help="cut (or hold) every scenario to this length",
     )
@@ -180,7 +162,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--check", action="store_true", help="exit 1 when lunad misses a target")
     p.add_argument(
         "--jobs",
-        type=_jobs,
+        type=int_at_least(1),
         default=1,
         metavar="N",
         help="share the runs among N processes (default 1); the results do not depend on N",
@@ -234,10 +216,10 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.check and args.true_noise:
         log.error("--check judges lunad as the daemon runs it; --true-noise is a diagnostic")
-        return EXIT_CONFIG
+        return EXIT_USAGE
     if args.summary and args.format == "json":
         log.error("--summary is a table; --format json gives every run")
-        return EXIT_CONFIG
+        return EXIT_USAGE
     try:
         cfg = load_config(args.config, {f"filter.{k}": v for k, v in args.set or ()})
     except ConfigError as exc:

@@ -114,11 +114,13 @@ def make_pair(directory: Path, name: str, force: bool = False) -> tuple[Path, Pa
     file of a new pair behind.
 
     Raises:
-        KeysError: a file exists (without ``force``), or the directory or files cannot
-            be written.
+        KeysError: ``directory`` is not one, a file exists (without ``force``), or the
+            directory or files cannot be written.
     """
     from zmq.auth import create_certificates
 
+    if os.path.lexists(directory) and not directory.is_dir():
+        raise KeysError(f"{directory}: not a directory: give the folder the key pair goes in")
     public = directory / f"{name}.key"
     secret = directory / f"{name}.key_secret"
     if not force:

@@ -77,7 +77,7 @@ class StartupSignals:
     signals only mark what was asked, and ``lunad serve`` acts on it once the daemon's
     own handlers are in place (``lunad.daemon.cli.serve.run``): a stop stops it, a reload re-reads
     the config if it came while the config was being read. What no Python code can
-    cover is the interpreter's own start, before ``main`` runs (about 25 ms here).
+    cover is the interpreter's own start, before ``main`` runs (30-50 ms here).
 
     Attributes:
         stop: the first SIGTERM or SIGINT, or None.

@@ -13,9 +13,10 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
+
+from lunad.daemon.cli.arg_types import int_at_least
 
 if TYPE_CHECKING:  # numpy behind them: imported when the command runs, not for every `lunad`
     from lunad.sim.paper_model import Profile
@@ -41,21 +42,6 @@ cannot be created; 74 a plot cannot be written.
 """
 
 
-def _int_at_least(minimum: int, what: str) -> Callable[[str], int]:
-    """An argparse type: an integer of at least ``minimum``, called ``what`` in errors."""
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"expected {what}, got {value}")
-        return value
-
-    return parse
-
-
 DEFAULT_PROFILE = "both"
 DEFAULT_FORMAT = "table"
 DEFAULT_READINGS = 1000
@@ -71,8 +57,8 @@ SWEEP_ONLY = {
 on the calibrated profile's exact expectation (no readings drawn, its own fixed seed for
 its starting points) and plots nothing."""
 
-_positive_int = _int_at_least(1, "a positive integer")
-_seed = _int_at_least(0, "a non-negative integer")
+_positive_int = int_at_least(1, "a positive integer")
+_seed = int_at_least(0, "a non-negative integer")
 """numpy.random.default_rng refuses a negative seed."""
 
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import signal
 import statistics
 import sys
 import time
@@ -20,13 +21,16 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, TextIO
 
+from lunad.daemon.cli.arg_types import int_at_least, positive_float, sensor_name
+
 if TYPE_CHECKING:
     from lunad.protocol.client import Subscriber
     from lunad.protocol.messages import HealthMessage, RangeMessage
 
 DESCRIPTION = """\
 Subscribe to a lunad daemon and show its stream. Reports messages lost on the way
-(gaps in seq) when it stops.
+(gaps in seq) when it stops: Ctrl-C, SIGTERM (exit 0 for either), --count or
+--duration.
 
 Lines (the default): one per reading (or every Nth) and one per health message. On a
 terminal a header names the columns at the start and every 20 lines; piped or
@@ -52,8 +56,9 @@ examples:
   lunad watch --connect ipc:///run/lunad/front.sock --every 25
   lunad watch --connect tcp://127.0.0.1:7781 --refresh
   lunad watch --connect tcp://127.0.0.1:7781 --json --count 100 > readings.jsonl
-  lunad watch --connect tcp://192.168.1.10:7781 --curve-server-key ~/keys/server.key \
-              --curve-client-key ~/keys/robot1.key_secret     a CURVE endpoint
+  # a CURVE endpoint
+  lunad watch --connect tcp://192.168.1.10:7781 --curve-server-key ~/keys/server.key \\
+              --curve-client-key ~/keys/robot1.key_secret
 """
 
 NOTHING_YET_AFTER_S = 5.0
@@ -106,7 +111,7 @@ def add_parser(sub: Any) -> None:
         default="tcp://127.0.0.1:7781",
         help="where the daemon publishes (default tcp://127.0.0.1:7781)",
     )
-    p.add_argument("--sensor", help="only this sensor's messages")
+    p.add_argument("--sensor", type=sensor_name, help="only this sensor's messages")
     p.add_argument(
         "--curve-server-key",
         metavar="FILE",
@@ -120,7 +125,7 @@ def add_parser(sub: Any) -> None:
     )
     p.add_argument(
         "--every",
-        type=int,
+        type=int_at_least(1),
         default=1,
         metavar="N",
         help="print every Nth reading (with --json too; health messages all)",
@@ -136,8 +141,8 @@ def add_parser(sub: Any) -> None:
     mode.add_argument(
         "--json", action="store_true", help='JSON lines, each with a "topic" key first'
     )
-    p.add_argument("--count", type=int, metavar="N", help="stop after N readings")
-    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    p.add_argument("--count", type=int_at_least(1), metavar="N", help="stop after N readings")
+    p.add_argument("--duration", type=positive_float, metavar="S", help="stop after S seconds")
     p.set_defaults(func=run)
 
 
@@ -596,11 +601,12 @@ def _draw(stdscr: Any, rows: list[str]) -> None:
     stdscr.refresh()
 
 
+def _stop_as_ctrl_c(_signum: int, _frame: object) -> None:
+    raise KeyboardInterrupt
+
+
 def run(args: argparse.Namespace) -> int:
     """Watch until Ctrl-C, ``--count`` or ``--duration`` (or q on the full screen)."""
-    if args.every < 1:
-        print("lunad watch: --every must be at least 1", file=sys.stderr)
-        return USAGE_ERROR
     keys = (args.curve_server_key, args.curve_client_key)
     if (keys[0] is None) != (keys[1] is None):
         print(
@@ -609,6 +615,7 @@ def run(args: argparse.Namespace) -> int:
         )
         return USAGE_ERROR
     curve = None if keys[0] is None or keys[1] is None else (keys[0], keys[1])
+    signal.signal(signal.SIGTERM, _stop_as_ctrl_c)  # `timeout`, a supervisor: a summary too
     try:
         if args.refresh:
             result = screen(args.connect, args.sensor, args.count, args.duration, curve)
