@@ -67,6 +67,8 @@ with no message, say what to check."""
 NOTHING_YET = (
     "lunad watch: nothing from %s yet; is the daemon running and publishing there"
     " (--publish, [publish] endpoint), and for an ipc:// socket may you read it (group lunad)?"
+    " A CURVE endpoint needs --curve-server-key and --curve-client-key, and refuses a client"
+    " key it does not list without a word to the client (its log says 'CURVE: refused')."
 )
 
 HEADER_EVERY_LINES = 20
