@@ -145,21 +145,27 @@ class SensorSection(_Section):
         return v
 
 
-def _serial_url_schemes() -> tuple[str, ...]:
-    """The URL schemes ``serial.serial_for_url`` opens: its ``serial.urlhandler``
-    package's ``protocol_<scheme>`` modules (socket, rfc2217, loop, spy, ...)."""
-    import pkgutil
+def _serial_url_handler_missing(scheme: str) -> str | None:
+    """Why ``serial.serial_for_url`` cannot open a URL with ``scheme``, or None when it
+    can: it imports ``protocol_<scheme>`` from each of ``serial.protocol_handler_packages``,
+    and so does this (a handler whose own dependency is missing, such as cp2110's
+    ``hid``, cannot open either)."""
+    import importlib
 
-    import serial.urlhandler
+    import serial
 
-    prefix = "protocol_"
-    return tuple(
-        sorted(
-            m.name[len(prefix) :]
-            for m in pkgutil.iter_modules(serial.urlhandler.__path__)
-            if m.name.startswith(prefix)
-        )
-    )
+    why = "pyserial has no handler for it"
+    for package in serial.protocol_handler_packages:
+        try:
+            importlib.import_module(f".protocol_{scheme}", package)
+        except ModuleNotFoundError as exc:
+            if exc.name not in (f"{package}.protocol_{scheme}", package):
+                why = f"its handler needs the module {exc.name!r}, which is not installed"
+        except ImportError as exc:
+            why = f"its handler cannot be imported ({exc})"
+        else:
+            return None
+    return why
 
 
 class SourceSection(_Section):
@@ -229,12 +235,18 @@ class SourceSection(_Section):
         never open, and would be retried every 2 s for ever."""
         if "://" not in v:
             return v
-        scheme = v.split("://", 1)[0].lower()
-        known = _serial_url_schemes()
-        if scheme not in known:
+        scheme = v.split("://", 1)[0].lower()  # as serial_for_url splits it
+        why = (
+            _serial_url_handler_missing(scheme)
+            if scheme.isidentifier()
+            else "a device path cannot contain '://'"
+        )
+        if why is not None:
+            if scheme.isidentifier():
+                why = f"URL scheme {scheme!r}: {why}"
             raise ValueError(
-                f"unknown URL scheme {scheme!r}: a device path such as /dev/serial0, or "
-                f"one of pyserial's URLs ({', '.join(s + '://' for s in known)})"
+                f"{why}; give a device path such as /dev/serial0, or a pyserial URL such "
+                "as socket://HOST:PORT, rfc2217://HOST:PORT or spy:///dev/ttyAMA0"
             )
         return v
 
@@ -522,28 +534,37 @@ class Config(_Section):
         return self
 
 
-def load_config(path: Path | str | None, overrides: dict[str, Any] | None = None) -> Config:
+def load_config(
+    path: Path | str | None,
+    overrides: dict[str, Any] | None = None,
+    *,
+    settings_required: bool = True,
+) -> Config:
     """Read ``path`` (or defaults), apply ``overrides`` and validate.
 
     Args:
         path: a TOML file, or None for the built-in defaults.
         overrides: dotted field name -> value, from command-line flags; None values
             are ignored.
+        settings_required: refuse a file that sets nothing (no key in any table:
+            empty, all comments, or only headers). It would mean the defaults, and on
+            a reload another device and endpoint at once; a file an editor truncated
+            looks like that. ``lunad calibrate --write`` may start a file from nothing.
 
     Raises:
-        ConfigError: the file is missing, not TOML or holds no settings, or a field is
-            wrong.
+        ConfigError: the file is missing, not TOML or (``settings_required``) sets
+            nothing, or a field is wrong.
     """
     data: dict[str, Any] = {}
     origin = "defaults"
     if path is not None:
         origin = str(path)
         data = _parse_toml(_read_config_text(path), path)
-        if not data:  # all defaults: on a reload, another device and endpoint at once
+        if settings_required and not _sets_anything(data):
             raise ConfigError(
-                f"config file {path} (--config): holds no settings (empty, or only "
-                "comments): a file an editor truncated? Leave --config out to run on the "
-                "built-in defaults"
+                f"config file {path} (--config): sets nothing (empty, only comments or "
+                "only table headers): a file an editor truncated? Leave --config out to "
+                "run on the built-in defaults"
             )
     for dotted, value in (overrides or {}).items():
         if value is None:
@@ -573,6 +594,11 @@ def load_config(path: Path | str | None, overrides: dict[str, Any] | None = None
         raise ConfigError(f"invalid configuration ({origin}): a value nests too deeply") from None
     rate = cfg.sensor.frame_rate_hz
     return cfg.model_copy(update={"source": cfg.source.model_copy(update={"rate_hz": rate})})
+
+
+def _sets_anything(table: dict[str, Any]) -> bool:
+    """Whether a parsed TOML table holds a key that is not itself a table, at any depth."""
+    return any(not isinstance(v, dict) or _sets_anything(v) for v in table.values())
 
 
 def _read_config_text(path: Path | str) -> str:

@@ -14,6 +14,7 @@ from __future__ import annotations
 EX_CONFIG = 78  # sysexits.h: configuration error
 EX_UNAVAILABLE = 69  # sysexits.h: a service the daemon needs is unavailable
 EX_IOERR = 74  # sysexits.h: an error while doing I/O on a file
+EXIT_USAGE = 2  # a bad option, or options that do not go together: argparse's own exit
 
 
 class LunadError(Exception):

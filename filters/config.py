@@ -186,9 +186,9 @@ class FilterConfig:
                 raise ValueError(f"FilterConfig.{name} must be at least 2 readings")
         if self.noise_slow_frames < self.noise_frames:
             raise ValueError(
-                f"FilterConfig.noise_slow_frames must be at least noise_frames "
-                f"({self.noise_frames}), got {self.noise_slow_frames}: the slow noise "
-                "average is the longer one (docs/filter.md section 3)"
+                f"FilterConfig.noise_slow_frames ({self.noise_slow_frames}) must be at least "
+                f"noise_frames ({self.noise_frames}): the slow noise average is the longer "
+                "one (docs/filter.md section 3); raise it or lower noise_frames"
             )
         if self.noise_jump_ratio <= 1.0:
             raise ValueError(

@@ -332,7 +332,7 @@ def test_a_distance_that_disagrees_fails_and_writes_nothing(
     argv = calibrate_argv(helpers, dev, wrong, "--config", str(cfg), "--write", seconds="0.5")
     r = subprocess.run(argv, capture_output=True, text=True, timeout=30)
     assert r.returncode == 1, r.stderr
-    assert "the sensor reads 2.0" in r.stderr and "nothing written" in r.stderr
+    assert "the sensor reads 2.0" in r.stderr and "Nothing written." in r.stderr
     assert "amp_ref" in r.stdout  # still reported, for the user to see
     assert cfg.read_text() == before
 
@@ -514,3 +514,25 @@ def test_bad_measurement_flags_are_refused_before_the_sensor_opens(
     r = subprocess.run(argv, capture_output=True, text=True, timeout=30)
     assert r.returncode == 78, r.stderr
     assert r.stderr == f"lunad calibrate: {line}\n" and r.stdout == ""
+
+
+def test_write_may_start_from_an_empty_config(
+    device: Callable[..., PtyDevice], tmp_path: Path, helpers: Any
+) -> None:
+    """The daemon refuses a config file that sets nothing; calibrate --write fills one."""
+    dev = device(
+        rate_hz=250,
+        output_enabled=False,
+        model=RealisticSensor(),
+        truth=Truth(distance_m=2.0, reflectivity=0.9, angle_deg=0.0, lux=100.0),
+    )
+    cfg = tmp_path / "front.toml"
+    cfg.write_text("")
+    r = subprocess.run(
+        [*write_amp_ref_argv(helpers, cfg, seconds="1"), "--device", dev.path],
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
+    assert r.returncode == 0, r.stderr
+    assert load_config(cfg).filter.to_filter_config().amp_ref == pytest.approx(AMP_REF, rel=0.03)

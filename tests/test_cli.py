@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import selectors
 import signal
 import subprocess
 import sys
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -87,8 +89,13 @@ def test_watch_stopped_by_sigterm_reports_what_came(
     )
     try:
         assert proc.stdout is not None
-        lines = [proc.stdout.readline() for _ in range(30)]  # health lines come between
-        assert sum(line.startswith("#") for line in lines) >= 20, lines
+        readings = 0
+        deadline = time.monotonic() + helpers.startup_s
+        with selectors.DefaultSelector() as sel:  # a stalled watcher fails, not hangs
+            sel.register(proc.stdout, selectors.EVENT_READ)
+            while readings < 20:  # health lines come between the readings
+                assert sel.select(timeout=deadline - time.monotonic()), "no readings"
+                readings += proc.stdout.readline().startswith("#")
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=30)
     finally:

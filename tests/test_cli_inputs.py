@@ -43,14 +43,14 @@ def test_demo_refuses_a_bad_option_before_it_starts(
 def test_demo_tells_a_daemon_that_exited_by_itself() -> None:
     """The demo's summary said "exited ... after SIGTERM" of a daemon that had exited
     with 78 long before: a real child that ends by itself is not signalled."""
-    from lunad.daemon.cli.demo import _stop
+    from lunad.daemon.cli.demo import stop_daemon
 
     child = subprocess.Popen([sys.executable, "-c", "raise SystemExit(78)"])
     child.wait(timeout=30)
-    assert _stop(child) == (78, True)
+    assert stop_daemon(child) == (78, True)
     child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
     try:
-        code, by_itself = _stop(child)
+        code, by_itself = stop_daemon(child)
     finally:
         if child.poll() is None:
             child.kill()

@@ -62,9 +62,17 @@ def test_file_and_flags(tmp_path: Path) -> None:
         ("[source]\nrate_hz = 999\n", {}, "source.rate_hz: unknown key; the frame rate is"),
         ("", {"source.record": ""}, "source.record (--record): String should have at least"),
         ("", {"source.kind": "replay", "source.path": ""}, "source.path (--replay): String"),
-        ("", {"source.device": "foo://bar"}, "source.device (--device): unknown URL scheme 'foo'"),
+        (
+            "",
+            {"source.device": "foo://bar"},
+            "source.device (--device): URL scheme 'foo': pyserial has no handler",
+        ),
         ("[filter]\nlux_init = -100\n", {}, "lux_init must be 0 or more, got -100"),
-        ("[filter]\nnoise_frames = 300\n", {}, "noise_slow_frames must be at least noise_frames"),
+        (
+            "[filter]\nnoise_frames = 300\n",
+            {},
+            "noise_slow_frames (250) must be at least noise_frames (300)",
+        ),
         ("[filter]\namp_ref = 1" + "0" * 400 + "\n", {}, "amp_ref: must be a finite number"),
     ],
 )
@@ -175,3 +183,16 @@ def test_example_config_loads_and_lists_every_filter_key() -> None:
 def test_a_device_is_a_path_or_a_url_pyserial_opens(device: str) -> None:
     """``foo://bar`` was retried every 2 s for ever ("protocol 'foo' not known")."""
     assert load_config(None, {"source.device": device}).source.device == device
+
+
+@pytest.mark.parametrize(
+    ("device", "why"),
+    [
+        ("/dev/a://b", "a device path cannot contain '://'"),
+        ("Foo://bar", "URL scheme 'foo': pyserial has no handler for it"),
+    ],
+)
+def test_a_device_url_that_cannot_open_says_why(device: str, why: str) -> None:
+    with pytest.raises(ConfigError) as info:
+        load_config(None, {"source.device": device})
+    assert f"source.device (--device): {why}; give a device path" in str(info.value)

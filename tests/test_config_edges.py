@@ -236,7 +236,9 @@ def test_sighup_to_a_config_replaced_by_a_fifo_keeps_the_running_one(
     assert d.stop() == 0
 
 
-@pytest.mark.parametrize("text", ["", "\n  \n", "# all commented out\n# [sensor]\n"])
+@pytest.mark.parametrize(
+    "text", ["", "\n  \n", "# all commented out\n# [sensor]\n", "[sensor]\n[source]\n"]
+)
 def test_sighup_to_a_config_with_no_settings_keeps_the_running_one(
     start_daemon: Any, endpoint: str, tmp_path: Path, text: str
 ) -> None:
@@ -254,7 +256,7 @@ def test_sighup_to_a_config_with_no_settings_keeps_the_running_one(
         replace_with_text(f, text)
         d.proc.send_signal(signal.SIGHUP)
         wait_for_log(d, "SIGHUP: keeping the running configuration")
-        assert "holds no settings" in d.log
+        assert "sets nothing" in d.log
         after = time.monotonic_ns()
         health = wait_for_health(sub, d.proc, lambda m: m.t_mono_ns > after)
         assert health.sensor == "front"  # still the configured sensor, on its endpoint
@@ -265,7 +267,7 @@ def test_serve_refuses_a_config_with_no_settings(tmp_path: Path, helpers: Any) -
     f = tmp_path / "lunad.toml"
     f.write_text("# nothing set\n")
     r = serve(helpers, "--config", str(f))
-    assert_refused(r, f"config file {f} (--config): holds no settings", "built-in defaults")
+    assert_refused(r, f"config file {f} (--config): sets nothing", "built-in defaults")
 
 
 # --- 3. TOML the parser cannot take -------------------------------------------------------

@@ -7,7 +7,7 @@ import struct
 import tempfile
 import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -167,35 +167,67 @@ def test_corrupt_last_record_is_skipped(tmp_path: Path, offset_from_end: int) ->
     data = bytearray(path.read_bytes())
     data[-offset_from_end] ^= 0x01
     path.write_bytes(bytes(data))
-    chunks, torn = read_all(path)
-    assert chunks == CHUNKS[:-1]
-    assert torn == 1
+    with Replay(path) as rep:
+        assert list(rep) == CHUNKS[:-1]
+        assert rep.torn_records == 1 and not rep.damaged  # nothing good after it
 
 
-def test_a_recording_damaged_mid_file_is_told_from_one_cut_short(
-    tmp_path: Path, caplog: pytest.LogCaptureFixture
+def first_record_offset(whole: bytes) -> int:
+    return len(whole) - sum(RECORD_OVERHEAD + len(c.data) for c in CHUNKS)
+
+
+@pytest.mark.parametrize(
+    "cut",
+    [
+        pytest.param(lambda b: b[:-5], id="last record cut short"),
+        pytest.param(lambda b: b + bytes(60), id="a tail of zeros"),
+        pytest.param(lambda b: b + struct.pack("<QII", 5, 0xFFFF_FFFF, 0), id="huge length at end"),
+    ],
+)
+def test_a_recording_cut_short_is_a_torn_tail(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, cut: Callable[[bytes], bytes]
 ) -> None:
-    """A corrupt record in the middle loses the rest of the file: logged at INFO as a
-    torn record, it read like the harmless tail of a power cut."""
-    path = tmp_path / "mid.lunarec"
+    """What a power cut leaves: an INFO line, not the damaged file's warning."""
+    path = tmp_path / "cut.lunarec"
     record(path, CHUNKS)
     whole = path.read_bytes()
-    path.write_bytes(whole[:-5])  # the last record cut short: a power cut
+    path.write_bytes(cut(whole))
     with caplog.at_level("INFO"), Replay(path) as rep:
-        assert list(rep) == CHUNKS[:-1]
+        assert list(rep) == (CHUNKS[:-1] if len(cut(whole)) < len(whole) else CHUNKS)
         assert rep.torn_records == 1 and not rep.damaged
     assert [r.levelname for r in caplog.records] == ["INFO"]
     assert "torn last record" in caplog.text
-    caplog.clear()
+
+
+@pytest.mark.parametrize(
+    ("where", "flip"),
+    [
+        pytest.param(RECORD_OVERHEAD, 0x01, id="data: CRC fails"),
+        pytest.param(9, 0x40, id="length: 16 KiB more, past the end"),
+        pytest.param(11, 0x80, id="length: beyond MAX_RECORD_BYTES"),
+    ],
+)
+def test_a_recording_damaged_mid_file_is_told_from_one_cut_short(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, where: int, flip: int
+) -> None:
+    """A corrupt first record loses the rest of the file: logged at INFO as a torn
+    record, it read like the harmless tail of a power cut; and appending to the file
+    cut it at the corrupt record, deleting the good ones after it."""
+    path = tmp_path / "mid.lunarec"
+    record(path, CHUNKS)
+    whole = path.read_bytes()
     damaged = bytearray(whole)
-    first = len(whole) - sum(RECORD_OVERHEAD + len(c.data) for c in CHUNKS)
-    damaged[first + RECORD_OVERHEAD] ^= 0x01  # the first record's data: its CRC fails
+    first = first_record_offset(whole)
+    damaged[first + where] ^= flip
     path.write_bytes(bytes(damaged))
     with caplog.at_level("INFO"), Replay(path) as rep:
         assert list(rep) == []
         assert rep.damaged and rep.trailing_bytes == len(whole) - first
     assert [r.levelname for r in caplog.records] == ["WARNING"]
     assert f"damaged: a corrupt record at byte {first}" in caplog.text
+    with pytest.raises(RecordFormatError, match="record to a new file"):
+        Recorder(path)
+    assert path.read_bytes() == bytes(damaged)  # untouched
 
 
 def test_garbage_length_does_not_swallow_memory(tmp_path: Path) -> None:
@@ -205,7 +237,7 @@ def test_garbage_length_does_not_swallow_memory(tmp_path: Path) -> None:
         f.write(struct.pack("<QII", 5, 0xFFFF_FFFF, 0) + b"junk")
     with Replay(path) as rep:
         assert list(rep) == CHUNKS[:1]
-        assert rep.torn_records == 1
+        assert rep.torn_records == 1 and not rep.damaged
         assert rep.trailing_bytes == RECORD_OVERHEAD + 4
 
 

@@ -511,7 +511,7 @@ def run(args: argparse.Namespace) -> int:
         print("lunad calibrate: --write needs --config FILE", file=sys.stderr)
         return EX_CONFIG
     try:
-        cfg = load_config(args.config, source_overrides(args))
+        cfg = load_config(args.config, source_overrides(args), settings_required=False)
     except ConfigError as exc:
         print(f"lunad calibrate: {exc}", file=sys.stderr)
         return EX_CONFIG
@@ -574,11 +574,11 @@ def run(args: argparse.Namespace) -> int:
     print("\n".join(report(cal, args, filter_cfg)))
     off = abs(cal.median_distance_m - args.distance)
     if off > DISTANCE_TOLERANCE * args.distance + DISTANCE_SLACK_M:
-        written = ": nothing written" if args.write else ""
+        written = " Nothing written." if args.write else ""
         print(
             f"lunad calibrate: the sensor reads {cal.median_distance_m:.3f} m, not "
-            f"{args.distance:g} m, so the figures above are for a target that is not there"
-            f"{written}; is the target where you say, and does it fill the beam?",
+            f"{args.distance:g} m.{written} Is the target at {args.distance:g} m, filling "
+            "the beam? (The figures above assume so.)",
             file=sys.stderr,
         )
         return DISTANCE_EXIT

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from lunad.daemon.cli.arg_types import int_at_least, positive_float
+from lunad.daemon.errors import EXIT_USAGE
 
 if TYPE_CHECKING:
     from lunad.daemon.cli.signals import Interrupts
@@ -89,19 +90,19 @@ def run(args: argparse.Namespace) -> int:
             f"lunad demo: --rate must be 500/n Hz (250, 166, 125, 100, ..., 1), got {args.rate}",
             file=sys.stderr,
         )
-        return 2
+        return EXIT_USAGE
     if args.duration < MIN_DURATION_S:
         print(
             f"lunad demo: --duration must be at least {MIN_DURATION_S:g} s (the daemon starts"
             f" and measures the noise first), got {args.duration:g}",
             file=sys.stderr,
         )
-        return 2
+        return EXIT_USAGE
     try:
         scenario = load_scenario(args.scenario)
     except ScenarioError as exc:
         print(f"lunad demo: --scenario: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_USAGE
 
     interrupts = Interrupts(signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
     try:
@@ -170,7 +171,7 @@ def _run(args: argparse.Namespace, scenario: Scenario, interrupts: Interrupts) -
                 finally:
                     quiet.cancel()
                     t0 = time.monotonic()
-                    code, by_itself = (None, False) if daemon is None else _stop(daemon)
+                    code, by_itself = (None, False) if daemon is None else stop_daemon(daemon)
                 stop_s = time.monotonic() - t0
                 sent = dev.frames_sent
                 junk = dev.garbage_bytes
@@ -195,7 +196,7 @@ def _run(args: argparse.Namespace, scenario: Scenario, interrupts: Interrupts) -
     return 0 if code == 0 and published == sent else 1
 
 
-def _stop(daemon: subprocess.Popen[bytes]) -> tuple[int, bool]:
+def stop_daemon(daemon: subprocess.Popen[bytes]) -> tuple[int, bool]:
     """SIGTERM, as systemd stops it; killed after 5 s. Returns its exit code, and
     whether it had exited by itself before (its log on stderr says why)."""
     code = daemon.poll()

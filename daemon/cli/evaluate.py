@@ -17,13 +17,12 @@ from dataclasses import asdict
 from typing import Any
 
 from lunad.daemon.cli.arg_types import int_at_least, positive_float
-from lunad.daemon.errors import EX_CONFIG, ConfigError
+from lunad.daemon.errors import EX_CONFIG, EXIT_USAGE, ConfigError
 
 log = logging.getLogger(__name__)
 
 EXIT_CONFIG = EX_CONFIG  # a bad scenario name or file, like any bad flag (docs/architecture.md)
 EXIT_TARGETS_MISSED = 1
-EXIT_USAGE = 2  # flags that do not go together, as argparse exits for a bad one
 MAX_SEED_RANGE = 10_000
 """The most seeds one ``--seed A-B`` names: 240,000 runs, days of CPU."""
 ROBUST_ORACLE_RATIO = 1.5

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, TextIO
 
 from lunad.daemon.cli.arg_types import int_at_least, positive_float, sensor_name
+from lunad.daemon.errors import EXIT_USAGE
 
 if TYPE_CHECKING:
     from lunad.protocol.client import Subscriber
@@ -67,8 +68,11 @@ with no message, say what to check."""
 NOTHING_YET = (
     "lunad watch: nothing from %s yet; is the daemon running and publishing there"
     " (--publish, [publish] endpoint), and for an ipc:// socket may you read it (group lunad)?"
-    " A CURVE endpoint needs --curve-server-key and --curve-client-key, and refuses a client"
-    " key it does not list without a word to the client (its log says 'CURVE: refused')."
+)
+NOTHING_YET_PLAIN = " Is it a CURVE endpoint (--curve-server-key and --curve-client-key)?"
+NOTHING_YET_CURVE = (
+    " Is this client's public key in the daemon's curve_clients? It refuses a key it does"
+    " not list without a word to the client (its log says 'CURVE: refused')."
 )
 
 HEADER_EVERY_LINES = 20
@@ -202,7 +206,6 @@ def format_json(msg: RangeMessage | HealthMessage) -> str:
     return '{"topic":' + name + "," + msg.model_dump_json()[1:]
 
 
-USAGE_ERROR = 2
 """Exit code for a bad flag, the one argparse gives for the flags it checks itself."""
 
 
@@ -291,7 +294,8 @@ def watch(
                 if msg is None:
                     if not heard and time.monotonic() >= hint_at:
                         hint_at = math.inf
-                        print(NOTHING_YET % endpoint, file=sys.stderr)
+                        more = NOTHING_YET_PLAIN if curve is None else NOTHING_YET_CURVE
+                        print(NOTHING_YET % endpoint + more, file=sys.stderr)
                     continue
                 heard = True
                 if isinstance(msg, RangeMessage):
@@ -615,7 +619,7 @@ def run(args: argparse.Namespace) -> int:
             "lunad watch: --curve-server-key and --curve-client-key go together",
             file=sys.stderr,
         )
-        return USAGE_ERROR
+        return EXIT_USAGE
     curve = None if keys[0] is None or keys[1] is None else (keys[0], keys[1])
     signal.signal(signal.SIGTERM, _stop_as_ctrl_c)  # `timeout`, a supervisor: a summary too
     try:
@@ -635,7 +639,7 @@ def run(args: argparse.Namespace) -> int:
             )
     except (EndpointError, TerminalError) as exc:
         print(f"lunad watch: {exc}", file=sys.stderr)
-        return USAGE_ERROR
+        return EXIT_USAGE
     except KeyboardInterrupt:
         return 0
     print(f"{result.readings} readings, {result.lost} lost (seq gaps)", file=sys.stderr)

@@ -190,9 +190,8 @@ class _ScanState:
     torn_records: int = 0
     trailing_bytes: int = 0
     damaged: bool = False
-    """The bad record is not a last one cut short (a power cut): a length beyond
-    ``MAX_RECORD_BYTES``, or a whole record with a wrong CRC and more bytes after it.
-    The file was damaged, and everything after it is lost."""
+    """Good records follow the bad one (``_holds_a_record``): not a last record cut
+    short by a power cut, but a file damaged in the middle, whose rest is lost."""
 
 
 def _records(f: _ReadableFile, state: _ScanState) -> Iterator[Chunk]:
@@ -207,25 +206,52 @@ def _records(f: _ReadableFile, state: _ScanState) -> Iterator[Chunk]:
         head = f.read(_RECORD.size) or b""
         if not head:
             return
-        whole = False  # the bad record is all there, not cut short by the file's end
-        length = 0
         if len(head) == _RECORD.size:
             t_mono_ns, length, crc = _RECORD.unpack(head)
-            whole = length > MAX_RECORD_BYTES
-            if not whole:
+            if length <= MAX_RECORD_BYTES:
                 data = f.read(length) or b""
-                whole = len(data) == length
-                if whole and zlib.crc32(data, zlib.crc32(head[:_RECORD_CRC_SPAN])) == crc:
+                if (
+                    len(data) == length
+                    and zlib.crc32(data, zlib.crc32(head[:_RECORD_CRC_SPAN])) == crc
+                ):
                     pos += _RECORD.size + length
                     state.good_end = pos
                     yield Chunk(data, t_mono_ns)
                     continue
-        bad_end = f.tell()
+        f.seek(pos + 1)
+        tail = f.read(RESYNC_WINDOW_BYTES + _RECORD.size + MAX_RESYNC_RECORD_BYTES) or b""
         f.seek(0, os.SEEK_END)
         state.torn_records = 1
         state.trailing_bytes = f.tell() - pos
-        state.damaged = whole and (length > MAX_RECORD_BYTES or f.tell() > bad_end)
+        state.damaged = _holds_a_record(tail)
         return
+
+
+RESYNC_WINDOW_BYTES = 64 * 1024
+"""How far past a bad record ``_records`` looks for a good one, to tell a file damaged
+in the middle from one cut short: a record holds one read of the port (tens to a few
+thousand bytes), so the next one starts well within this. Bounded, so that a hostile
+file costs at most this many offsets to check (about 50 ms)."""
+MAX_RESYNC_RECORD_BYTES = 16 * 1024
+"""The longest record the look-ahead takes as found: longer ones are not reads of a
+port, and a CRC over them at every offset would cost more."""
+
+
+def _holds_a_record(tail: bytes) -> bool:
+    """Whether a whole record whose CRC checks starts at one of the first
+    ``RESYNC_WINDOW_BYTES`` offsets of ``tail`` (the bytes after a bad record's first).
+    A power cut leaves nothing readable after the record it cut (a tail of zeros or
+    of the cut record's own bytes); a damaged file goes on with good records."""
+    size = _RECORD.size
+    for at in range(min(len(tail) - size + 1, RESYNC_WINDOW_BYTES)):
+        _t, length, crc = _RECORD.unpack_from(tail, at)
+        end = at + size + length
+        if length > MAX_RESYNC_RECORD_BYTES or end > len(tail):
+            continue
+        head = tail[at : at + _RECORD_CRC_SPAN]
+        if zlib.crc32(tail[at + size : end], zlib.crc32(head)) == crc:
+            return True
+    return False
 
 
 _NO_LOCKS = (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS)
@@ -294,11 +320,13 @@ class Recorder:
 
     The file is append-only. Opening an existing recording checks its header, truncates
     a torn last record (left by a power cut; logged) and appends after the last good
-    one; the header keeps the first recorder's version, description, creation time and
-    frame rate. Records appended after a reboot restart the monotonic clock, so
-    ``t_mono_ns`` may step back; ``paced`` treats that as no gap. The recorder holds an
-    exclusive ``flock`` on the file until ``close``: a second writer is refused before
-    it reads or changes anything.
+    one; a file damaged in the middle (good records after a corrupt one) is refused
+    (``RecordFormatError``), since cutting it there would delete them. The header keeps
+    the first recorder's version, description, creation time and frame rate. Records
+    appended after a reboot restart the monotonic clock, so ``t_mono_ns`` may step
+    back; ``paced`` treats that as no gap. The recorder holds an exclusive ``flock`` on
+    the file until ``close``: a second writer is refused before it reads or changes
+    anything.
 
     Durability: each record is one unbuffered ``write``, so a crash of the process loses
     nothing already passed to the recorder. ``fsync`` runs at most once per
@@ -385,6 +413,12 @@ class Recorder:
             state = _ScanState(good_end=f.tell())
             for _ in _records(f, state):
                 pass
+            if state.damaged:  # cutting it here would delete the good records after it
+                raise RecordFormatError(
+                    f"{self.path}: damaged at byte {state.good_end} (good records follow a "
+                    f"corrupt one); appending would drop the {state.trailing_bytes} bytes "
+                    "from there on: record to a new file"
+                )
             if state.trailing_bytes:
                 log.warning(
                     "%s: dropping a torn last record (%d bytes) before appending",
