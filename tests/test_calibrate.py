@@ -160,9 +160,12 @@ def test_write_keeps_comments_and_other_keys(tmp_path: Path) -> None:
     assert load_config(g).sensor.name == "y"
 
 
+@pytest.mark.parametrize("start_empty", [False, True], ids=["config with the device", "empty"])
 def test_calibrate_on_the_virtual_sensor(
-    device: Callable[..., PtyDevice], tmp_path: Path, helpers: Any
+    device: Callable[..., PtyDevice], tmp_path: Path, helpers: Any, start_empty: bool
 ) -> None:
+    """amp_ref recovered and written; the daemon refuses a config file that sets
+    nothing, but calibrate --write may start one from nothing."""
     dev = device(
         rate_hz=250,
         output_enabled=False,
@@ -170,9 +173,11 @@ def test_calibrate_on_the_virtual_sensor(
         truth=Truth(distance_m=2.0, reflectivity=0.9, angle_deg=0.0, lux=100.0),
     )
     cfg = tmp_path / "front.toml"
-    cfg.write_text(f'[source]\ndevice = "{dev.path}"\n')
+    cfg.write_text("" if start_empty else f'[source]\ndevice = "{dev.path}"\n')
     r = subprocess.run(
-        write_amp_ref_argv(helpers, cfg, seconds="1"),
+        [*write_amp_ref_argv(helpers, cfg, seconds="1"), "--device", dev.path]
+        if start_empty
+        else write_amp_ref_argv(helpers, cfg, seconds="1"),
         capture_output=True,
         text=True,
         timeout=30,
@@ -181,7 +186,8 @@ def test_calibrate_on_the_virtual_sensor(
     amp_ref = load_config(cfg).filter.to_filter_config().amp_ref
     assert amp_ref == pytest.approx(AMP_REF, rel=0.03)  # the simulator's truth, recovered
     assert "warning" not in r.stderr
-    assert f'source]\ndevice = "{dev.path}"' in cfg.read_text()
+    if not start_empty:
+        assert f'source]\ndevice = "{dev.path}"' in cfg.read_text()
 
 
 def calibrate_argv(
@@ -514,25 +520,3 @@ def test_bad_measurement_flags_are_refused_before_the_sensor_opens(
     r = subprocess.run(argv, capture_output=True, text=True, timeout=30)
     assert r.returncode == 78, r.stderr
     assert r.stderr == f"lunad calibrate: {line}\n" and r.stdout == ""
-
-
-def test_write_may_start_from_an_empty_config(
-    device: Callable[..., PtyDevice], tmp_path: Path, helpers: Any
-) -> None:
-    """The daemon refuses a config file that sets nothing; calibrate --write fills one."""
-    dev = device(
-        rate_hz=250,
-        output_enabled=False,
-        model=RealisticSensor(),
-        truth=Truth(distance_m=2.0, reflectivity=0.9, angle_deg=0.0, lux=100.0),
-    )
-    cfg = tmp_path / "front.toml"
-    cfg.write_text("")
-    r = subprocess.run(
-        [*write_amp_ref_argv(helpers, cfg, seconds="1"), "--device", dev.path],
-        capture_output=True,
-        text=True,
-        timeout=30,
-    )
-    assert r.returncode == 0, r.stderr
-    assert load_config(cfg).filter.to_filter_config().amp_ref == pytest.approx(AMP_REF, rel=0.03)
