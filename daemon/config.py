@@ -36,7 +36,12 @@ from pydantic import (
 
 from lunad.daemon.errors import ConfigError
 from lunad.filters import FilterConfig
-from lunad.protocol.commands import BAUD_RATES, FRAME_RATES_HZ
+from lunad.protocol.commands import (
+    BAUD_RATES,
+    FRAME_RATES_HZ,
+    I2C_ADDRESS_MAX,
+    I2C_ADDRESS_MIN,
+)
 from lunad.protocol.curve_keys import read_key_file
 from lunad.protocol.file_kind import file_kind
 from lunad.protocol.frame import OutputFormat
@@ -184,7 +189,7 @@ class SourceSection(_Section):
     device: Annotated[str, Field(min_length=1)] = DEFAULT_DEVICE
     baud: int = 115200
     bus: Annotated[str, Field(pattern=r"^(\d+|sim)$")] = "1"
-    address: Annotated[int, Field(ge=0x08, le=0x77)] = 0x10
+    address: int = 0x10
     path: Annotated[str, Field(min_length=1)] | None = None
     speed: float | None = 1.0
     record: Annotated[str, Field(min_length=1)] | None = None
@@ -198,6 +203,16 @@ class SourceSection(_Section):
                 return int(v, 0)
             except ValueError:
                 raise ValueError("must be an I2C address like 0x10") from None
+        return v
+
+    @field_validator("address")
+    @classmethod
+    def _address_range(cls, v: int) -> int:
+        if not I2C_ADDRESS_MIN <= v <= I2C_ADDRESS_MAX:  # said in hex, as addresses are
+            raise ValueError(
+                f"must be an I2C address from {I2C_ADDRESS_MIN:#04x} to {I2C_ADDRESS_MAX:#04x}"
+                f" (M05 p.13), got {v:#04x}"
+            )
         return v
 
     @field_validator("speed", mode="before")
@@ -728,7 +743,11 @@ def _describe(exc: ValidationError, origin: str) -> str:
         if err["type"] == "extra_forbidden":
             msg = "unknown key"
         got = err.get("input")
-        quiet = err["type"] in ("extra_forbidden", "missing") or isinstance(got, dict)
+        quiet = (
+            err["type"] in ("extra_forbidden", "missing")
+            or isinstance(got, dict)
+            or ", got " in msg  # the check showed the value itself (an address in hex)
+        )
         suffix = "" if quiet else f"; got {_shown(got)}"
         lines.append(f"{where}: {msg}{suffix}" if field else msg)  # a check across sections
         # names its fields itself

@@ -68,6 +68,8 @@ def test_file_and_flags(tmp_path: Path) -> None:
             "source.device (--device): URL scheme 'foo': pyserial has no handler",
         ),
         ("[filter]\nlux_init = -100\n", {}, "lux_init must be 0 or more, got -100"),
+        ("[source]\naddress = 0x99\n", {}, "from 0x08 to 0x77 (M05 p.13), got 0x99"),
+        ("", {"source.address": "3"}, "source.address (--address): must be an I2C address from"),
         (
             "[filter]\nnoise_frames = 300\n",
             {},
