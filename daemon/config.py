@@ -251,19 +251,16 @@ class SourceSection(_Section):
         if "://" not in v:
             return v
         scheme = v.split("://", 1)[0].lower()  # as serial_for_url splits it
-        why = (
-            _serial_url_handler_missing(scheme)
-            if scheme.isidentifier()
-            else "a device path cannot contain '://'"
+        if not scheme.isidentifier():
+            why = "a device path cannot contain '://'"
+        elif (missing := _serial_url_handler_missing(scheme)) is None:
+            return v
+        else:
+            why = f"URL scheme {scheme!r}: {missing}"
+        raise ValueError(
+            f"{why}; give a device path such as /dev/serial0, or a pyserial URL such "
+            "as socket://HOST:PORT, rfc2217://HOST:PORT or spy:///dev/ttyAMA0"
         )
-        if why is not None:
-            if scheme.isidentifier():
-                why = f"URL scheme {scheme!r}: {why}"
-            raise ValueError(
-                f"{why}; give a device path such as /dev/serial0, or a pyserial URL such "
-                "as socket://HOST:PORT, rfc2217://HOST:PORT or spy:///dev/ttyAMA0"
-            )
-        return v
 
     @field_validator("baud")
     @classmethod

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, TextIO
 
 from lunad.daemon.cli.arg_types import int_at_least, positive_float, sensor_name
+from lunad.daemon.cli.signals import Interrupts
 from lunad.daemon.errors import EXIT_USAGE
 
 if TYPE_CHECKING:
@@ -204,9 +205,6 @@ def format_json(msg: RangeMessage | HealthMessage) -> str:
 
     name = json.dumps(topic(msg.kind, msg.sensor).decode())
     return '{"topic":' + name + "," + msg.model_dump_json()[1:]
-
-
-"""Exit code for a bad flag, the one argparse gives for the flags it checks itself."""
 
 
 class EndpointError(ValueError):
@@ -607,10 +605,6 @@ def _draw(stdscr: Any, rows: list[str]) -> None:
     stdscr.refresh()
 
 
-def _stop_as_ctrl_c(_signum: int, _frame: object) -> None:
-    raise KeyboardInterrupt
-
-
 def run(args: argparse.Namespace) -> int:
     """Watch until Ctrl-C, ``--count`` or ``--duration`` (or q on the full screen)."""
     keys = (args.curve_server_key, args.curve_client_key)
@@ -621,7 +615,7 @@ def run(args: argparse.Namespace) -> int:
         )
         return EXIT_USAGE
     curve = None if keys[0] is None or keys[1] is None else (keys[0], keys[1])
-    signal.signal(signal.SIGTERM, _stop_as_ctrl_c)  # `timeout`, a supervisor: a summary too
+    Interrupts(signal.SIGTERM)  # as Ctrl-C: `timeout` or a supervisor gets the summary too
     try:
         if args.refresh:
             result = screen(args.connect, args.sensor, args.count, args.duration, curve)
