@@ -805,7 +805,22 @@ class RangeFilter:
                         self._slow_tick = SLOW_EVERY
                         self._slow_side(self.noise_light, qs2, obs)
             r = self.c2 / s2 + self._q_m2
-            if active and t - self._last_accept_ns <= self._stale_ns:
+            if not active or t - self._last_accept_ns > self._stale_ns:
+                # No track yet, or none accepted for stale_after_s: start one here
+                # (the short branch first: see the range test below).
+                if active and t >= self._quiet_ns:  # the track as it was, at the last frame
+                    self._shadow(self.x, self.v, self.p00, self.p01, self.p11, t, last)
+                else:  # a still track judged beside a manoeuvre ends with the track
+                    self._sh_on = False
+                self._start(z, r)
+                self._last_accept_ns = t
+                if active:  # after a stale stretch: held back until a reading agrees
+                    reasons = (*reasons, Reason.STALE) if reasons else _STALE
+                else:  # the first track: its surface's amp, and the noise has until
+                    self._track_s = s  # then to be measured
+                    if self._boot is not None:
+                        self._boot_until_ns = t + self._stale_ns
+            else:
                 x = self.x
                 p00 = self.p00
                 p01 = self.p01
@@ -821,69 +836,8 @@ class RangeFilter:
                 e = z - x
                 sp = p00 + r
                 e2 = e * e
-                if e2 > self._gate2 * sp:
-                    # The manoeuvre test's mean square takes the rejected reading at
-                    # the gate: after a jump of the light, readings fall beyond the
-                    # gate while the reading variance still climbs, and the accepted
-                    # ones alone leave the mean square behind the new noise that the
-                    # fast mean already shows (docs/filter.md section 4).
-                    power = self.man_power
-                    self.man_power = power + self._drift_gain * (self._gate2 * sp - power)
-                    sign = e > 0.0
-                    d = z - self._run_last
-                    n = self._run_n
-                    away = self._run_away
-                    side = self._run_side + 1 if n and sign == self._run_sign else 1
-                    self._run_side = side
-                    ts = self._track_s  # the surface the track is on (TRACK_AMP_GAIN)
-                    same = abs(s - ts) < SAME_AMP_SHARE * ts
-                    if n and sign == self._run_sign and d * d <= self._gate2 * (r + self._run_r):
-                        n += 1
-                        same = same and self._run_same
-                        self._run_sum += z
-                        self._run_rsum += r
-                        away = 0
-                        ra = self._run_amp
-                        if amp > EDGE_AMP_RATIO * ra or ra > EDGE_AMP_RATIO * amp:
-                            self._run_mixed = True
-                    else:
-                        if n and sign == self._run_sign and (d > 0.0) == sign:
-                            away = (away or 1) + 1  # each further off than the last
-                        else:
-                            away = 0
-                        n = 1
-                        self._run_sum = z
-                        self._run_rsum = r
-                        self._run_sign = sign
-                        self._run_mixed = False
-                    self._run_away = away
-                    self._run_amp = amp
-                    self._run_last = z
-                    self._run_r = r
-                    self._run_gap = 0
-                    self._run_same = same
-                    if n >= self._confirm and (  # on the same surface, a still track waits
-                        n > self._confirm  # for one more (SAME_AMP_SHARE)
-                        or not same
-                        or self.v * self.v >= _STILL_V2
-                    ):
-                        self._shadow(x, self.v, p00, p01, p11, t)  # the track as it was
-                        self._start(self._run_sum / n, self._run_rsum / (n * n))
-                        self._last_accept_ns = t
-                        if self._run_mixed:
-                            outlier_e = _UNCONFIRMED
-                    elif away >= EDGE_RUN or side >= SIDE_RUN:  # an edge: start at the latest
-                        self._shadow(x, self.v, p00, p01, p11, t)
-                        self._start(z, r)
-                        self._last_accept_ns = t
-                        outlier_e = _UNCONFIRMED
-                    else:
-                        self._run_n = n
-                        self.x = x
-                        self.p00 = p00
-                        self.p01 = p01
-                        self.p11 = p11
-                        outlier_e = e
+                if e2 > self._gate2 * sp:  # beyond the gate (a method: the jump is short)
+                    outlier_e = self._reject(z, amp, s, r, e, sp, x, p00, p01, p11, t)
                 else:
                     ts = self._track_s
                     self._track_s = ts + TRACK_AMP_GAIN * (s - ts)
@@ -963,19 +917,6 @@ class RangeFilter:
                     if e2 > _COVER2 * sp:  # a reading the track does not explain yet
                         extra += COVER_SHARE * e2
                     self.extra = extra
-            else:  # no track yet, or none accepted for stale_after_s: start one here
-                if active and t >= self._quiet_ns:  # the track as it was, at the last frame
-                    self._shadow(self.x, self.v, self.p00, self.p01, self.p11, t, last)
-                else:  # a still track judged beside a manoeuvre ends with the track
-                    self._sh_on = False
-                self._start(z, r)
-                self._last_accept_ns = t
-                if active:  # after a stale stretch: held back until a reading agrees
-                    reasons = (*reasons, Reason.STALE) if reasons else _STALE
-                else:  # the first track: its surface's amp, and the noise has until
-                    self._track_s = s  # then to be measured
-                    if self._boot is not None:
-                        self._boot_until_ns = t + self._stale_ns
         else:
             self._gap += 1
             self._chained = False
@@ -1010,7 +951,12 @@ class RangeFilter:
                     reasons = _WEAK_STALE if marginal else _STALE
         if not reasons and self.active:
             x = self.x
-            if x >= self._min_m and x <= self._max_m:
+            # The short branch first: Python 3.11 specialises a comparison only where
+            # a short jump follows it, and the gate's test and this one ran generic
+            # while they jumped over the long branch (docs/performance.md).
+            if x < self._min_m or x > self._max_m:
+                reasons = _CLOSE if x < self._min_m else _FAR
+            else:
                 var = self.p00
                 if t >= self._still_ns:  # settled after a manoeuvre
                     var *= STILL_VAR_RATIO
@@ -1082,11 +1028,96 @@ class RangeFilter:
                 if marginal:
                     reasons = (Reason.WEAK_SIGNAL, *reasons) if reasons else _WEAK
                 return _new(Estimate, (x, sigma, lux_out, s, _DEGRADED, reasons, zone))
-            reasons = _CLOSE if x < self._min_m else _FAR
         self.zone = _UNRELIABLE
         if t - self._last_accept_ns > self._stale_ns:
             reasons = (*reasons, Reason.STALE) if reasons else _STALE
         return _new(Estimate, (None, None, self.lux, s, _DROPOUT, reasons, _UNRELIABLE))
+
+    def _reject(
+        self,
+        z: float,
+        amp: int,
+        s: float,
+        r: float,
+        e: float,
+        sp: float,
+        x: float,
+        p00: float,
+        p01: float,
+        p11: float,
+        t: int,
+    ) -> float:
+        """Take the reading ``z`` (metres, variance ``r``, m^2; amp ``amp``, strength
+        ``s``, at ``t`` ns) that the track rejected: its innovation ``e`` (metres) lies
+        beyond the gate of its predicted variance ``sp`` (m^2), the track predicted to
+        ``x`` with covariance ``p00``, ``p01``, ``p11``. Counts it into the run of
+        readings that agree with each other and not with the track, and starts the
+        track on that run once it is confirmed (or at the latest reading, at an
+        edge); else the track keeps its prediction. Returns the outlier's innovation
+        for the publishing step: ``e``, ``_UNCONFIRMED`` for a start it may not
+        publish as ok, or 0.0 for a start on readings that agree."""
+        # The manoeuvre test's mean square takes the rejected reading at the gate: after
+        # a jump of the light, readings fall beyond the gate while the reading variance
+        # still climbs, and the accepted ones alone leave the mean square behind the new
+        # noise that the fast mean already shows (docs/filter.md section 4).
+        power = self.man_power
+        self.man_power = power + self._drift_gain * (self._gate2 * sp - power)
+        sign = e > 0.0
+        d = z - self._run_last
+        n = self._run_n
+        away = self._run_away
+        side = self._run_side + 1 if n and sign == self._run_sign else 1
+        self._run_side = side
+        ts = self._track_s  # the surface the track is on (TRACK_AMP_GAIN)
+        same = abs(s - ts) < SAME_AMP_SHARE * ts
+        if n and sign == self._run_sign and d * d <= self._gate2 * (r + self._run_r):
+            n += 1
+            same = same and self._run_same
+            self._run_sum += z
+            self._run_rsum += r
+            away = 0
+            ra = self._run_amp
+            if amp > EDGE_AMP_RATIO * ra or ra > EDGE_AMP_RATIO * amp:
+                self._run_mixed = True
+        else:
+            if n and sign == self._run_sign and (d > 0.0) == sign:
+                away = (away or 1) + 1  # each further off than the last
+            else:
+                away = 0
+            n = 1
+            self._run_sum = z
+            self._run_rsum = r
+            self._run_sign = sign
+            self._run_mixed = False
+        self._run_away = away
+        self._run_amp = amp
+        self._run_last = z
+        self._run_r = r
+        self._run_gap = 0
+        self._run_same = same
+        if n >= self._confirm and (  # on the same surface, a still track waits
+            n > self._confirm  # for one more (SAME_AMP_SHARE)
+            or not same
+            or self.v * self.v >= _STILL_V2
+        ):
+            self._shadow(x, self.v, p00, p01, p11, t)  # the track as it was
+            self._start(self._run_sum / n, self._run_rsum / (n * n))
+            self._last_accept_ns = t
+            if self._run_mixed:
+                return _UNCONFIRMED
+        elif away >= EDGE_RUN or side >= SIDE_RUN:  # an edge: start at the latest
+            self._shadow(x, self.v, p00, p01, p11, t)
+            self._start(z, r)
+            self._last_accept_ns = t
+            return _UNCONFIRMED
+        else:
+            self._run_n = n
+            self.x = x
+            self.p00 = p00
+            self.p01 = p01
+            self.p11 = p11
+            return e
+        return 0.0
 
     def _second_difference(self, z: float, z1: float, s2: float) -> float | None:
         """The second difference (metres) of the readings ending at ``z`` where the last
