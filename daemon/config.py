@@ -227,6 +227,13 @@ class SourceSection(_Section):
             raise ValueError("must be a factor in (0, 1000] or max")
         return v
 
+    @property
+    def timed_by_its_frames(self) -> bool:
+        """Whether the frame clock times frames by the rate they come at (a serial
+        sensor, and a replay, whose recorded read times are the live run's), not the
+        rate asked for (an I2C sensor, which the source triggers at that rate)."""
+        return self.kind != "i2c"
+
     @model_validator(mode="after")
     def _replay_needs_path(self) -> SourceSection:
         if self.kind == "replay" and not self.path:

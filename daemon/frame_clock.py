@@ -126,8 +126,9 @@ class FrameClock:
         nominal_hz: the rate the sensor was asked for (a replay: the rate its recording
             gives), Hz; the clock times frames by it until the reads say otherwise.
         follow: True to time frames by the measured rate once it differs from
-            ``nominal_hz``; False to keep ``nominal_hz`` and only measure (a replay,
-            whose recording says what the live run timed frames by).
+            ``nominal_hz`` (a serial sensor, and a replay, whose recorded read times
+            are the live run's); False to keep ``nominal_hz`` and only measure (an I2C
+            sensor, which the source triggers at that rate).
 
     Raises:
         ValueError: ``nominal_hz`` is not positive (caller misuse).

@@ -36,10 +36,11 @@ class Health:
       sent at a state change, milliseconds after the previous one, and low then high
       around a stall of the daemon (the backlog lands in the next interval).
     - ``frame_rate_hz``: the rate the daemon times frames by (the spacing of a
-      read's frames for the filter, the silence threshold): the configured rate,
-      or the rate a serial sensor really sends at once it differs by more than 5 %
-      (``lunad.daemon.frame_clock``), or a replay's recorded rate. Steady where
-      ``fps`` moves with every interval.
+      read's frames for the filter, the silence threshold): the configured rate (a
+      replay: its recording's), or the rate a serial sensor, or the one a replay
+      plays, really sends at once it differs by more than 5 %
+      (``lunad.daemon.frame_clock``). Steady where ``fps`` moves with every
+      interval.
 
     Args:
         sensor: the sensor name.

@@ -108,7 +108,7 @@ class Reconnecting:
                 self.cfg.sensor.frame_rate_hz,
             )
         # a new port may hold another sensor, or one that takes the rate command now
-        self._clock = FrameClock(rate, follow=self.cfg.source.kind == "serial")
+        self._clock = FrameClock(rate, follow=self.cfg.source.timed_by_its_frames)
         self._set_frame_rate(rate)
         self._open_failures = 0
         self._recovered_seen = 0

@@ -28,9 +28,11 @@ Frame timing: the frames of one read are stamped a frame period apart for the fi
 and silence is a number of frame periods. The period is the one the sensor really sends
 at: a ``FrameClock`` fed with every read measures it, starting from the configured rate,
 and a sensor that did not take the rate command (a lost reply, firmware that ignores it)
-is timed by its own rate once 1.5 s of frames show it, with one warning. A replay keeps
-the rate its recording gives, and an I2C sensor the configured one (it is triggered on
-that schedule); for both the clock only measures, and a disagreement is logged.
+is timed by its own rate once 1.5 s of frames show it, with one warning. A replay's
+clock starts from the rate its recording gives and follows its recorded read times as
+the live run's did, so it times every frame as the live run did, a sensor that ignored
+``--rate`` included. An I2C sensor keeps the configured rate (it is triggered on that
+schedule): its clock only measures, and a disagreement is logged.
 """
 
 from __future__ import annotations
@@ -134,7 +136,7 @@ class Daemon(Reconnecting, Reloading):
         """``publish_hz``: the latest frame's estimate, until a publish time sends it."""
         self._reasons_json: dict[tuple[str, ...], bytes] = {}
         self.filter = RangeFilter(cfg.filter.to_filter_config())
-        self._clock = FrameClock(cfg.sensor.frame_rate_hz, follow=cfg.source.kind == "serial")
+        self._clock = FrameClock(cfg.sensor.frame_rate_hz, follow=cfg.source.timed_by_its_frames)
         """Measures the rate the sensor sends at; says which rate frames are timed by."""
         self._checksum_errors_seen = 0
         """Checksum errors already fed to ``_clock``: frames the sensor sent on its clock."""
@@ -145,7 +147,7 @@ class Daemon(Reconnecting, Reloading):
         if cfg.filter != self.cfg.filter:
             self.filter = RangeFilter(cfg.filter.to_filter_config())
         self.cfg = cfg
-        nominal, follow = self._sensor_rate_hz(), cfg.source.kind == "serial"
+        nominal, follow = self._sensor_rate_hz(), cfg.source.timed_by_its_frames
         if self._clock.nominal_hz != nominal or self._clock.follow != follow:
             self._clock = FrameClock(nominal, follow)
         self._set_frame_rate(self._clock.rate_hz)
@@ -502,45 +504,48 @@ class Daemon(Reconnecting, Reloading):
     def _retime(self) -> None:
         """The frame clock's verdict changed: time frames by its rate, and say so once.
 
-        A serial sensor is timed by the rate it sends at. A replay keeps the rate its
-        recording gives (the live run's), and an I2C sensor the configured one (the
-        source triggers it on that schedule); for them a disagreement is only logged.
+        A serial sensor, and a replay of one, is timed by the rate it sends at; an I2C
+        sensor keeps the configured one (the source triggers it on that schedule), and
+        a disagreement is only logged.
         """
         clock = self._clock
         sensor, nominal = _hz(clock.sensor_hz), _hz(clock.nominal_hz)
         if clock.follow:
+            if self.cfg.source.kind == "replay":
+                said = f"{self._source_desc()}: its sensor sends"
+                asked = f"the {nominal} its recording gives"
+                again = f"the {nominal} frames a second its recording gives again"
+            else:
+                said = "the sensor sends"
+                asked = f"the configured {nominal}"
+                again = f"the configured {nominal} frames a second again"
             if clock.differs:
                 log.warning(
-                    "the sensor sends %s frames a second, not the configured %s; "
-                    "timing frames by %s",
+                    "%s %s frames a second, not %s; timing frames by %s",
+                    said,
                     sensor,
-                    nominal,
+                    asked,
                     sensor,
                 )
             else:
-                log.info(
-                    "the sensor sends the configured %s frames a second again; timing frames by %s",
-                    nominal,
-                    nominal,
-                )
+                log.info("%s %s; timing frames by %s", said, again, nominal)
             self._set_frame_rate(clock.rate_hz)
             return
-        why = (
-            "the rate its recording gives"
-            if self.cfg.source.kind == "replay"
-            else "the rate it is triggered at"
-        )
         if clock.differs:
             log.warning(
-                "%s: frames come %s a second, not %s; timing frames by %s, %s",
+                "%s: frames come %s a second, not %s; timing frames by %s, the rate it is "
+                "triggered at",
                 self._source_desc(),
                 sensor,
                 nominal,
                 nominal,
-                why,
             )
         else:
-            log.info("%s: frames come %s a second again, %s", self._source_desc(), nominal, why)
+            log.info(
+                "%s: frames come %s a second again, the rate it is triggered at",
+                self._source_desc(),
+                nominal,
+            )
 
     def _step(self, frame: Frame, raw_m: float | None, t_mono_ns: int) -> Estimate:
         """Filter one frame (``raw_m``: its distance, metres; taken at ``t_mono_ns``)

@@ -201,8 +201,9 @@ def test_back_to_the_configured_rate() -> None:
     assert clock.rate_hz == 100 and not clock.differs
 
 
-def test_a_replay_measures_but_keeps_its_rate() -> None:
-    """``follow=False``: the recording's rate stays the timing; the verdict still changes."""
+def test_a_clock_that_does_not_follow_measures_but_keeps_its_rate() -> None:
+    """``follow=False`` (an I2C sensor): the configured rate stays the timing; the verdict
+    still changes."""
     rng = random.Random(2)
     clock = FrameClock(100, follow=False)
     trace = run(clock, reads(sensor_frames(T0, [(250, 5)]), rng))

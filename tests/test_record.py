@@ -531,6 +531,21 @@ def test_replay_source_from_config_and_errors(recording: Path, tmp_path: Path) -
         ReplaySource(recording, speed=0.0)
 
 
+@pytest.mark.parametrize(("header_hz", "taken"), [(100, 100), (1, 1), (0, None), (300, None)])
+def test_replay_source_takes_a_header_rate_the_sensor_can_run_at(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, header_hz: int, taken: int | None
+) -> None:
+    """A rate of 500/n Hz is the live run's; 0 says none (format 1 writes none); 300 Hz,
+    which no TF-Luna runs at, is a header lunad did not write: not taken, and said."""
+    path = tmp_path / "r.lunarec"
+    with Recorder(path, "test", frame_rate_hz=header_hz) as rec:
+        rec(Chunk(encode_frame(200, 1500, 2368), 1))
+    with caplog.at_level("WARNING"), ReplaySource(path) as src:
+        assert src.frame_rate_hz == taken
+    said = "its header gives 300 frames a second, a rate the sensor cannot run at"
+    assert (said in caplog.text) == (header_hz == 300)
+
+
 def test_replay_source_reports_a_torn_tail(recording: Path) -> None:
     recording.write_bytes(recording.read_bytes()[:-3])
     with ReplaySource(recording, speed=None) as src:

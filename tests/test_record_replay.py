@@ -273,6 +273,47 @@ def test_replay_keeps_sending_health(start_daemon: Any, endpoint: str, tmp_path:
     assert "reconnecting" not in states and states[-1] == "stopped", states
 
 
+@pytest.mark.parametrize("header_hz", [1, 300])
+def test_a_replay_times_frames_by_the_rate_they_came_at(
+    start_daemon: Any, endpoint: str, tmp_path: Path, header_hz: int
+) -> None:
+    """Frames that came at 100 Hz, ten a read, under a header that says otherwise: 1 Hz
+    (a sensor that ignored ``--rate 1``) or 300 Hz (no TF-Luna runs at it: a header lunad
+    did not write). The replay's frame clock follows the recorded reads as the live run's
+    did: after them every reading of the still card is published, and the last health
+    says 100 Hz. Timed by the 1 Hz header, a read's ten frames would lie 9 s apart, each
+    read a clock started again for the filter, and every reading a dropout."""
+    from lunad.daemon.sources.base import Chunk
+    from lunad.daemon.sources.recording import Recorder
+    from lunad.protocol.frame import encode_frame
+    from lunad.protocol.messages import HealthMessage
+
+    rec = tmp_path / "deaf.lunarec"
+    ten = b"".join(encode_frame(200, 5000, 2368) for _ in range(10))
+    with Recorder(rec, source_desc="test", frame_rate_hz=header_hz) as r:
+        for k in range(60):  # 6 s
+            r(Chunk(ten, 10**12 + (k + 1) * 100_000_000))
+    d = start_daemon("--replay", str(rec), "--speed", "max", "--publish", endpoint)
+    ranges: list[RangeMessage] = []
+    last: HealthMessage | None = None
+    with Subscriber(endpoint) as sub:
+        deadline = time.monotonic() + 20.0
+        while time.monotonic() < deadline and (last is None or last.state != "stopped"):
+            msg = sub.recv(timeout_s=1.0)
+            if isinstance(msg, RangeMessage):
+                ranges.append(msg)
+            elif isinstance(msg, HealthMessage):
+                last = msg
+    assert last is not None and last.state == "stopped", d.log
+    assert last.frame_rate_hz == 100.0, d.log
+    late = [m.status for m in ranges if m.seq >= 300]  # the last 3 s
+    assert len(late) == 300 and set(late) == {"ok"}, (set(late), d.log)
+    if header_hz == 1:
+        assert "its sensor sends 100 frames a second, not the 1 its recording gives" in d.log
+    else:  # not taken: the replay starts from --rate (100), which the frames agree with
+        assert "its header gives 300 frames a second, a rate the sensor cannot run at" in d.log
+
+
 def test_sighup_to_a_missing_recording_keeps_the_replay(
     start_daemon: Any, endpoint: str, tmp_path: Path, helpers: Any
 ) -> None:

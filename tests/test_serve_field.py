@@ -223,15 +223,10 @@ class _Reads(Source):
         pass
 
 
-@pytest.mark.parametrize("kind", ["serial", "replay"])
-def test_a_reads_frames_are_spaced_by_the_rate_the_sensor_sends_at(
-    tmp_path: Path, kind: str, caplog: pytest.LogCaptureFixture
-) -> None:
-    """Configured 100 Hz, frames at 250 in reads of 5 (the daemon's loop, a source
-    handing out reads with their times). A serial sensor's frames are spaced 10 ms
-    apart for the filter until the frame clock has seen 1.5 s of them, then 4 ms. A
-    replay whose recording says 100 Hz keeps 10 ms, the live run's timing, and logs
-    the disagreement."""
+def _frame_stamps(kind: str, tmp_path: Path, caplog: pytest.LogCaptureFixture) -> list[int]:
+    """The times the daemon's loop gives the filter for 4 s of frames at 250 Hz in reads
+    of 5, configured 100 Hz: from a serial sensor, or from a replay whose recording says
+    100 Hz (a source handing out reads with their times, as ``ReplaySource`` does)."""
     from lunad.daemon.config import load_config
     from lunad.daemon.health import Health, State
     from lunad.daemon.notify import Notifier
@@ -281,17 +276,36 @@ def test_a_reads_frames_are_spaced_by_the_rate_the_sensor_sends_at(
     finally:
         d._wake.close()
     assert len(stamps) == len(chunks) * per_read
+    return stamps
+
+
+def test_a_reads_frames_are_spaced_by_the_rate_the_sensor_sends_at(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A serial sensor's frames are spaced 10 ms apart for the filter, the configured
+    rate, until the frame clock has seen 1.5 s of them, then 4 ms; one warning says so."""
+    stamps = _frame_stamps("serial", tmp_path, caplog)
     spacing = [b - a for a, b in itertools.pairwise(stamps)]
-    within = [g for j, g in enumerate(spacing) if (j + 1) % per_read]  # frames of one read
-    first_s, last_s = within[:200], within[-200:]  # the first and the last second
-    assert set(first_s) == {10_000_000}  # the configured rate, until the clock knows better
-    log = caplog.text
-    if kind == "serial":
-        assert set(last_s) == {4_000_000}
-        assert log.count("the sensor sends 250 frames a second, not the configured 100") == 1
-    else:
-        assert set(last_s) == {10_000_000}
-        assert "frames come 250 a second, not 100; timing frames by 100" in log
+    within = [g for j, g in enumerate(spacing) if (j + 1) % 5]  # frames of one read
+    assert set(within[:200]) == {10_000_000}  # the first second
+    assert set(within[-200:]) == {4_000_000}  # the last
+    assert caplog.text.count("the sensor sends 250 frames a second, not the configured 100") == 1
+
+
+def test_a_replay_times_frames_as_the_live_run_did(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The replay of those reads, its recording saying 100 Hz, gives the filter the
+    same times frame for frame: its clock follows the recorded reads as the live run's
+    did, and says so naming the recording."""
+    live = _frame_stamps("serial", tmp_path, caplog)
+    caplog.clear()
+    replayed = _frame_stamps("replay", tmp_path, caplog)
+    assert replayed == live
+    assert (
+        caplog.text.count("its sensor sends 250 frames a second, not the 100 its recording gives")
+        == 1
+    )
 
 
 def test_a_slow_publish_rate_does_not_read_as_a_silent_sensor(

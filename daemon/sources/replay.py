@@ -24,6 +24,7 @@ from lunad.daemon.errors import ConfigError, LunadError, SourceLostError, Source
 from lunad.daemon.sources.base import Chunk, Source
 from lunad.daemon.sources.recording import Pacer, RecordFormatError, Replay, check_speed
 from lunad.daemon.wakeup import Wakeup
+from lunad.protocol.commands import FRAME_RATES_HZ
 
 if TYPE_CHECKING:
     from lunad.daemon.config import SourceSection
@@ -67,6 +68,16 @@ class ReplaySource(Source):
             raise SourceOpenError(f"cannot open recording {self.path}: {exc}") from exc
         except RecordFormatError as exc:
             raise SourceOpenError(str(exc)) from exc
+        rate = self._replay.header.frame_rate_hz
+        if rate not in FRAME_RATES_HZ:  # a header lunad did not write (it writes --rate)
+            log.warning(
+                "%s: its header gives %d frames a second, a rate the sensor cannot run at "
+                "(500/n Hz); frames are timed by --rate until 1.5 s of them show their own",
+                self.path,
+                rate,
+            )
+            rate = 0
+        self._frame_rate_hz = rate or None
         self._chunks = iter(self._replay)
         try:
             self._next: Chunk | None = next(self._chunks, None)
@@ -86,8 +97,9 @@ class ReplaySource(Source):
 
     @property
     def frame_rate_hz(self) -> int | None:
-        """The rate the recording's header gives (format 2), else None."""
-        return self._replay.header.frame_rate_hz or None
+        """The rate the recording's header gives (format 2), Hz, else None: a format 1
+        file, or a rate the sensor cannot run at (logged when the file is opened)."""
+        return self._frame_rate_hz
 
     @property
     def exhausted(self) -> bool:
