@@ -22,7 +22,7 @@ import re
 import stat
 import tomllib
 from pathlib import Path
-from typing import Annotated, Any, Literal, get_args, get_origin
+from typing import Annotated, Any, ClassVar, Literal, get_args, get_origin
 
 from pydantic import (
     BaseModel,
@@ -103,29 +103,47 @@ FLAGS: dict[str, str] = {
 
 class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
+    _table: ClassVar[str] = ""
+    """The section's table in the file (``sensor``), for the dotted names of its fields."""
 
     @field_validator("*", mode="before")
     @classmethod
-    def _no_bool_for_number(cls, v: Any, info: ValidationInfo) -> Any:
-        """TOML's ``true`` is not a number: pydantic would take it as 1 (1 Hz, 1 message)."""
-        if isinstance(v, bool) and info.field_name is not None:
-            if _is_number(cls.model_fields[info.field_name].annotation):
-                raise ValueError("must be a number, not true or false")
+    def _typed_as_toml(cls, v: Any, info: ValidationInfo) -> Any:
+        """TOML has numbers and booleans of its own, and pydantic would convert what is
+        not one: ``true`` to 1 (1 Hz, 1 message), and in a file the string ``"250"`` to
+        250 or ``"off"`` to False, where another key's ``"4.5"`` is refused. Strings
+        are taken for numbers and booleans only from command-line flags (``flags`` in
+        the validation context: their dotted names), which are strings."""
+        if info.field_name is None:
+            return v
+        annotation = cls.model_fields[info.field_name].annotation
+        if isinstance(v, bool) and _is_kind(annotation, (int, float)):
+            raise ValueError("must be a number, not true or false")
+        if isinstance(v, str):
+            flags = info.context.get("flags", ()) if info.context else ()
+            if f"{cls._table}.{info.field_name}" not in flags:
+                if _is_kind(annotation, (int, float)):
+                    raise ValueError("must be a number, not a string: write it without quotes")
+                if _is_kind(annotation, (bool,)):
+                    raise ValueError("must be true or false, not a string: no quotes")
         return v
 
 
-def _is_number(annotation: Any) -> bool:
-    """True for ``int``, ``float``, and those made optional or ``Annotated``."""
-    if annotation in (int, float):
+def _is_kind(annotation: Any, kinds: tuple[type, ...]) -> bool:
+    """True for one of ``kinds`` (``int``, ``float``, ``bool``), and those made optional
+    or ``Annotated``."""
+    if annotation in kinds:
         return True
     return any(
-        _is_number(a)
+        _is_kind(a, kinds)
         for a in get_args(annotation)[: 1 if get_origin(annotation) is Annotated else None]
     )
 
 
 class SensorSection(_Section):
     """[sensor]: what this sensor is called and how to set it up at start."""
+
+    _table: ClassVar[str] = "sensor"
 
     name: SensorName = "tfluna"
     frame_rate_hz: int = 100
@@ -173,6 +191,32 @@ def _serial_url_handler_missing(scheme: str) -> str | None:
     return why
 
 
+def _serial_url_problem(url: str) -> str | None:
+    """Why pyserial cannot open ``url`` whatever is at its other end, or None: its host,
+    port or options do not parse. Opening parses them first (the handler's
+    ``from_url``), so such a URL fails every retry, every 2 s for ever. A ``spy://``
+    URL's own URL is checked too; ``hwgrep://`` is not, as what it matches depends on
+    what is plugged in."""
+    import serial
+
+    scheme = url.split("://", 1)[0].lower()
+    if scheme == "hwgrep":
+        return None
+    try:
+        port = serial.serial_for_url(url, do_not_open=True)
+        inner = port.from_url(url) if hasattr(port, "from_url") else None
+    except (serial.SerialException, ValueError) as exc:
+        return f"the URL does not parse: {exc}"
+    except (TypeError, KeyError):  # pyserial's own faults on a missing port or option
+        return (
+            f"the URL does not parse: expected {scheme}://HOST:PORT (a port 0-65535) and"
+            " only the options pyserial's handler knows"
+        )
+    if scheme == "spy" and isinstance(inner, str) and "://" in inner:
+        return _serial_url_problem(inner)
+    return None
+
+
 class SourceSection(_Section):
     """[source]: where the bytes come from.
 
@@ -184,6 +228,8 @@ class SourceSection(_Section):
     ``rate_hz`` is [sensor] ``frame_rate_hz``, copied here by ``load_config`` for
     backends that pace themselves (I2C); it is not a key of its own.
     """
+
+    _table: ClassVar[str] = "source"
 
     kind: Literal["serial", "i2c", "replay"] = "serial"
     device: Annotated[str, Field(min_length=1)] = DEFAULT_DEVICE
@@ -260,10 +306,12 @@ class SourceSection(_Section):
         scheme = v.split("://", 1)[0].lower()  # as serial_for_url splits it
         if not scheme.isidentifier():
             why = "a device path cannot contain '://'"
-        elif (missing := _serial_url_handler_missing(scheme)) is None:
-            return v
-        else:
+        elif (missing := _serial_url_handler_missing(scheme)) is not None:
             why = f"URL scheme {scheme!r}: {missing}"
+        elif (problem := _serial_url_problem(v)) is not None:
+            why = problem
+        else:
+            return v
         raise ValueError(
             f"{why}; give a device path such as /dev/serial0, or a pyserial URL such "
             "as socket://HOST:PORT, rfc2217://HOST:PORT or spy:///dev/ttyAMA0"
@@ -294,6 +342,8 @@ class PublishSection(_Section):
     socket a CURVE server: the stream is encrypted, and only clients whose public key is
     in ``curve_clients`` are admitted (docs/security.md).
     """
+
+    _table: ClassVar[str] = "publish"
 
     endpoint: str = DEFAULT_ENDPOINT
     health_interval_s: float = 1.0
@@ -585,9 +635,11 @@ def load_config(
                 "only table headers): a file an editor truncated? Leave --config out to "
                 "run on the built-in defaults"
             )
+    flags: set[str] = set()
     for dotted, value in (overrides or {}).items():
         if value is None:
             continue
+        flags.add(dotted)
         node = data
         *parents, leaf = dotted.split(".")
         for part in parents:
@@ -603,7 +655,7 @@ def load_config(
             "the frame rate is [sensor] frame_rate_hz (--rate)"
         )
     try:
-        cfg = Config.model_validate(data)
+        cfg = Config.model_validate(data, context={"flags": flags})
         cfg.filter.to_filter_config()
     except ValidationError as exc:
         raise ConfigError(_describe(exc, origin)) from None

@@ -47,6 +47,11 @@ well inside it (``k_m_per_lux`` about 1e-7, lux thresholds about 1e5); beyond it
 filter's arithmetic overflows (``k_m_per_lux = 1e-320`` made ``lux_est`` infinite), and
 the published JSON would carry ``inf``, which no JSON parser accepts."""
 
+COUNT_MAX = 100_000
+"""Every count of readings (``step_confirm``, ``manoeuvre_frames``, ``noise_frames``,
+``noise_slow_frames``) is at most this: 400 s at 250 Hz. Sane ones are tens to
+hundreds; past it an average never settles in a run, and 1e20 readings is a typo."""
+
 
 @dataclass(frozen=True, slots=True)
 class FilterConfig:
@@ -176,6 +181,17 @@ class FilterConfig:
                 raise ValueError(
                     f"FilterConfig.{f.name} must be {'0 or ' if zero_ok else ''}between"
                     f" {VALUE_MIN:g} and {VALUE_MAX:g}, got {value!r}"
+                )
+        if self.amp_min > AMP_AMBIENT:
+            raise ValueError(
+                f"FilterConfig.amp_min must be at most {AMP_AMBIENT} (an amp above it is"
+                f" ambient overexposure, M05 p.14, never a reading), got {self.amp_min!r}"
+            )
+        for name in ("step_confirm", "manoeuvre_frames", "noise_frames", "noise_slow_frames"):
+            if getattr(self, name) > COUNT_MAX:
+                raise ValueError(
+                    f"FilterConfig.{name} must be at most {COUNT_MAX} readings, got"
+                    f" {getattr(self, name)!r}"
                 )
         if self.min_range_m >= self.max_range_m:
             raise ValueError("FilterConfig.min_range_m must be below max_range_m")

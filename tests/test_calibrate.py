@@ -17,9 +17,10 @@ from typing import Any
 
 import pytest
 
-from lunad.daemon.cli.calibrate import compute, write_filter_values
+from lunad.daemon.cli.calibrate import LUX_MAX, compute, write_filter_values
 from lunad.daemon.config import load_config
 from lunad.filters import FilterConfig
+from lunad.sim import scenario
 from lunad.sim.physics import (
     AMP_REF,
     REALISTIC_K_M_PER_LUX,
@@ -482,6 +483,15 @@ def test_write_follows_a_symlinked_config(
     assert os.listdir(tmp_path / "repo") == ["front.toml"]
 
 
+ANGLE_LINE = (
+    "--angle must be from 0 to 45 degrees (every figure is divided by cos(angle), which "
+    "steeper angles take towards 0)"
+)
+LUX_LINE = (
+    "--lux must be from 0 to 200000 (lux at the target; the brightest sunlight is about 120000)"
+)
+
+
 @pytest.mark.parametrize(
     ("flags", "line"),
     [
@@ -491,12 +501,18 @@ def test_write_follows_a_symlinked_config(
         (["--distance", "0"], "--distance must be positive and finite (metres), got 0.0"),
         (["--distance", "-2"], "--distance must be positive and finite (metres), got -2.0"),
         (["--distance", "inf"], "--distance must be positive and finite (metres), got inf"),
-        (["--angle", "90"], "--angle must be at least 0 and below 90 degrees, got 90.0"),
-        (["--angle", "-10"], "--angle must be at least 0 and below 90 degrees, got -10.0"),
+        (["--angle", "90"], f"{ANGLE_LINE}, got 90.0"),
+        (["--angle", "-10"], f"{ANGLE_LINE}, got -10.0"),
+        (["--angle", "45.1"], f"{ANGLE_LINE}, got 45.1"),
+        (["--angle", "89.9999999"], f"{ANGLE_LINE}, got 89.9999999"),
+        (["--angle", "nan"], f"{ANGLE_LINE}, got nan"),
         (["--seconds", "0"], "--seconds must be positive and finite, got 0.0"),
         (["--seconds", "nan"], "--seconds must be positive and finite, got nan"),
-        (["--lux", "-1"], "--lux must be 0 or more and finite (lux at the target), got -1.0"),
-        (["--lux", "inf"], "--lux must be 0 or more and finite (lux at the target), got inf"),
+        (["--lux", "-1"], f"{LUX_LINE}, got -1.0"),
+        (["--lux", "inf"], f"{LUX_LINE}, got inf"),
+        (["--lux", "nan"], f"{LUX_LINE}, got nan"),
+        (["--lux", "200001"], f"{LUX_LINE}, got 200001.0"),
+        (["--lux", "30000000", "--fit-k"], f"{LUX_LINE}, got 30000000.0"),
         (
             ["--fit-k"],
             "--fit-k needs --lux above 0: a lux meter reading at the target (20-40 klux)",
@@ -520,3 +536,121 @@ def test_bad_measurement_flags_are_refused_before_the_sensor_opens(
     r = subprocess.run(argv, capture_output=True, text=True, timeout=30)
     assert r.returncode == 78, r.stderr
     assert r.stderr == f"lunad calibrate: {line}\n" and r.stdout == ""
+
+
+def test_the_lux_cap_is_the_simulators() -> None:
+    """A --lux the simulator cannot show is one calibrate refuses, and the other way."""
+    assert scenario.FIELD_LIMITS["lux"] == (0.0, LUX_MAX)
+
+
+def config_dir(tmp_path: Path) -> Path:
+    """A directory for the config file alone (the device fixture links its pty into
+    ``tmp_path``), so that a temporary file left beside it shows."""
+    etc = tmp_path / "etc"
+    etc.mkdir()
+    return etc
+
+
+LAMP_AT_4_M = Truth(distance_m=4.0, reflectivity=0.9, angle_deg=0.0, lux=30_000.0)
+CALIBRATED = '[sensor]\nname = "front"\n\n[filter]\namp_ref = 1990.0  # bench\nsigma0_m = 0.0041\n'
+"""A calibrated file, as a run leaves it."""
+
+
+@pytest.mark.parametrize(
+    ("flags", "named"),
+    [
+        (["--lux", "30000000", "--fit-k"], "--lux must be from 0 to 200000"),
+        (["--angle", "89.9999999"], "--angle must be from 0 to 45 degrees"),
+    ],
+    ids=["lux with extra zeros", "grazing angle"],
+)
+def test_a_typo_in_lux_or_angle_leaves_the_config_as_it_was(
+    device: Callable[..., PtyDevice], tmp_path: Path, helpers: Any, flags: list[str], named: str
+) -> None:
+    """``--lux 30000000`` wrote k_m_per_lux = 2.06e-10 and ``--angle 89.9999999``
+    amp_ref = 1.1e12, each into the file and then refused by the daemon's start (exit 78
+    after the write). Both are refused before the sensor is read; the file is kept to
+    the byte and the daemon still takes it."""
+    dev = device(rate_hz=250, output_enabled=False, model=RealisticSensor(), truth=LAMP_AT_4_M)
+    cfg = config_dir(tmp_path) / "front.toml"
+    cfg.write_text(CALIBRATED)
+    before = cfg.read_bytes()
+    argv = calibrate_argv(
+        helpers, dev, LAMP_AT_4_M, "--config", str(cfg), *flags, "--write", seconds="1"
+    )
+    r = subprocess.run(argv, capture_output=True, text=True, timeout=30)
+    assert r.returncode == 78, r.stderr
+    assert r.stderr.startswith(f"lunad calibrate: {named}") and r.stdout == ""
+    assert cfg.read_bytes() == before and os.listdir(cfg.parent) == ["front.toml"]
+    assert load_config(cfg).filter.to_filter_config().amp_ref == 1990.0
+
+
+def test_a_figure_the_daemon_would_refuse_is_not_written(
+    device: Callable[..., PtyDevice], tmp_path: Path, helpers: Any
+) -> None:
+    """A reflectivity typed 1e6 times too small gives amp_ref = 1.8e9, above what the
+    config takes (1e9): it used to be written, and the file then refused. Now nothing is
+    written, and the message names the key, its value and the flag to check."""
+    truth = Truth(distance_m=2.0, reflectivity=0.9, angle_deg=0.0, lux=0.0)
+    dev = device(rate_hz=250, output_enabled=False, model=RealisticSensor(), truth=truth)
+    cfg = config_dir(tmp_path) / "front.toml"
+    cfg.write_text(CALIBRATED)
+    before = cfg.read_bytes()
+    typo = Truth(distance_m=2.0, reflectivity=0.0000009, angle_deg=0.0, lux=0.0)
+    argv = calibrate_argv(helpers, dev, typo, "--config", str(cfg), "--write", seconds="1")
+    r = subprocess.run(argv, capture_output=True, text=True, timeout=30)
+    assert r.returncode == 78, r.stderr
+    amp_ref, _ = figure(r.stdout, "amp_ref")  # still reported, for the user to see
+    assert amp_ref == pytest.approx(AMP_REF * 1e6, rel=0.03)
+    assert r.stderr.startswith(
+        "lunad calibrate: --write: nothing written: the measured amp_ref = "
+    ), r.stderr
+    refused = f"would make the daemon refuse {cfg} (FilterConfig.amp_ref must be between"
+    assert refused in r.stderr
+    assert "is --reflectivity right?" in r.stderr and "wrote" not in r.stdout
+    assert cfg.read_bytes() == before and os.listdir(cfg.parent) == ["front.toml"]
+    load_config(cfg)
+
+
+def test_a_file_refused_already_is_said_to_be_and_kept(
+    device: Callable[..., PtyDevice], tmp_path: Path, helpers: Any
+) -> None:
+    """--device stood in for the file's broken device at the start, but the daemon reads
+    the file without it: calibrate used to write and then report the file invalid as if
+    its own values were. Now it names the file's fault, keeps the file and gives the
+    line to add by hand."""
+    truth = Truth(distance_m=2.0, reflectivity=0.9, angle_deg=0.0, lux=0.0)
+    dev = device(rate_hz=250, output_enabled=False, model=RealisticSensor(), truth=truth)
+    cfg = config_dir(tmp_path) / "front.toml"
+    cfg.write_text('[source]\ndevice = "nosuch://x"\n\n[filter]\namp_ref = 1500.0\n')
+    before = cfg.read_bytes()
+    argv = calibrate_argv(helpers, dev, truth, "--config", str(cfg), "--write", seconds="1")
+    r = subprocess.run(argv, capture_output=True, text=True, timeout=30)
+    assert r.returncode == 78, r.stderr
+    assert r.stderr.startswith(
+        f"lunad calibrate: --write: nothing written: {cfg} is refused already, before this "
+        f"run's values (invalid configuration ({cfg}): source.device"
+    ), r.stderr
+    assert "URL scheme 'nosuch'" in r.stderr
+    amp_ref, _ = figure(r.stdout, "amp_ref")
+    assert f"add `amp_ref = {amp_ref:.1f}` under [filter] by hand" in r.stderr
+    assert cfg.read_bytes() == before and os.listdir(cfg.parent) == ["front.toml"]
+
+
+def test_write_checks_the_new_file_before_it_replaces_the_old(tmp_path: Path) -> None:
+    """``check`` sees the complete new file; what it raises leaves the old one in place
+    and no temporary file behind."""
+    f = tmp_path / "a.toml"
+    f.write_text("[filter]\namp_ref = 2000.0\n")
+    seen: list[float] = []
+
+    def refuse(new: Path) -> None:
+        seen.append(load_config(new).filter.to_filter_config().amp_ref)
+        raise ValueError("refused")
+
+    with pytest.raises(ValueError, match="refused"):
+        write_filter_values(f, {"amp_ref": 1500.0}, check=refuse)
+    assert seen == [1500.0]
+    assert f.read_text() == "[filter]\namp_ref = 2000.0\n" and os.listdir(tmp_path) == ["a.toml"]
+    write_filter_values(f, {"amp_ref": 1500.0}, check=load_config)
+    assert load_config(f).filter.to_filter_config().amp_ref == 1500.0

@@ -56,6 +56,17 @@ def test_file_and_flags(tmp_path: Path) -> None:
         ("", {"publish.endpoint": "tcp://*:0"}, "publish.endpoint (--publish): the TCP port"),
         ("[sensor]\nframe_rate_hz = true\n", {}, "frame_rate_hz (--rate): must be a number"),
         ("[publish]\nsndhwm = true\n", {}, "publish.sndhwm: must be a number, not true"),
+        # A quoted number or boolean in a file is a string, refused as [filter] refuses
+        # one; pydantic would convert it (flags, which are strings, still are).
+        ('[sensor]\nframe_rate_hz = "250"\n', {}, "frame_rate_hz (--rate): must be a number, not"),
+        (
+            '[sensor]\nconfigure = "off"\n',
+            {},
+            "sensor.configure (--no-configure): must be true or false, not a",
+        ),
+        ('[publish]\nhealth_interval_s = "0.5"\n', {}, "health_interval_s: must be a number"),
+        ('[publish]\nsndhwm = "10"\n', {}, "publish.sndhwm: must be a number, not a string"),
+        ('[source]\nbaud = "115200"\n', {}, "source.baud (--baud): must be a number, not"),
         ("[publish]\nhealth_interval_s = 1e-9\n", {}, "publish.health_interval_s: must be 0.05"),
         ("[publish]\npublish_hz = true\n", {}, "publish_hz (--publish-hz): must be a number"),
         ("", {"publish.publish_hz": "1e-300"}, "publish_hz (--publish-hz): must be 0.01..250"),
@@ -68,6 +79,16 @@ def test_file_and_flags(tmp_path: Path) -> None:
             "source.device (--device): URL scheme 'foo': pyserial has no handler",
         ),
         ("[filter]\nlux_init = -100\n", {}, "lux_init must be 0 or more, got -100"),
+        # A URL whose handler exists but whose host, port or options cannot parse fails
+        # every open: refused at start, not retried every 2 s for ever.
+        ("", {"source.device": "socket://"}, "URL does not parse: expected socket://HOST:PORT"),
+        ("", {"source.device": "socket://127.0.0.1:99999"}, "URL does not parse: expected"),
+        ("", {"source.device": "rfc2217://h:99999"}, "does not parse: expected a string in"),
+        ("", {"source.device": "alt:///dev/null?class=Nope"}, "unknown class: 'Nope'"),
+        ("", {"source.device": "spy://socket://"}, "URL does not parse: expected socket://"),
+        ("[filter]\namp_min = 70000\n", {}, "amp_min must be at most 32768 (an amp above"),
+        ("[filter]\nstep_confirm = 1000000000\n", {}, "step_confirm must be at most 100000"),
+        ("[filter]\nnoise_slow_frames = 99999999999\n", {}, "noise_slow_frames must be at most"),
         ("[source]\naddress = 0x99\n", {}, "from 0x08 to 0x77 (M05 p.13), got 0x99"),
         ("", {"source.address": "3"}, "source.address (--address): must be an I2C address from"),
         (
@@ -84,6 +105,23 @@ def test_errors_name_the_field(tmp_path: Path, text: str, overrides: dict, needl
     with pytest.raises(ConfigError) as info:
         load_config(f if text else None, overrides)  # flags alone: no file
     assert needle in str(info.value)
+
+
+def test_flags_are_strings_text_keeps_its_quotes_and_good_urls_load(tmp_path: Path) -> None:
+    """Command-line flags reach the config as strings and are converted; in a file, the
+    keys whose values are text take quotes as before: an I2C address, a replay's
+    ``speed = "max"``."""
+    cfg = load_config(None, {"sensor.frame_rate_hz": "250", "source.baud": "230400"})
+    assert (cfg.sensor.frame_rate_hz, cfg.source.baud) == (250, 230400)
+    f = tmp_path / "quoted.toml"
+    f.write_text(
+        '[source]\nkind = "replay"\npath = "a.lunarec"\nspeed = "max"\naddress = "0x11"\n'
+        '[sensor]\nname = "front"\n'
+    )
+    cfg = load_config(f)
+    assert cfg.source.speed is None and cfg.source.address == 0x11
+    for url in ("socket://127.0.0.1:7000", "loop://", "spy:///dev/ttyAMA0", "rfc2217://h:80"):
+        assert load_config(None, {"source.device": url}).source.device == url
 
 
 def test_the_i2c_rate_is_the_sensor_rate_and_a_bad_one_is_named_once() -> None:

@@ -27,7 +27,7 @@ import tempfile
 import threading
 import time
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -61,15 +61,17 @@ reading at the target under daylight or a lamp, --lux 30000 --fit-k, which uses 
 sigma0 the first run wrote. Until sigma0 is measured, lux_est rests on the datasheet's
 4 mm and is a coarse indication (dark, indoor, daylight), not a figure.
 
-Put the target square to the beam (or give --angle), fill the 2 degree beam with it
-(the spot is 3.5 cm wide per metre), and keep the scene still while it measures.
-Ctrl-C aborts: nothing is written. Exit 1: the port cannot be opened or is lost;
-too few readings; the sensor reads a distance more than 10 % (and 5 cm) off
---distance, so the target is not where the figures assume (they are reported, and
---write writes nothing); or the figure --lux or --fit-k asks for could not be
-measured (amp_ref is still reported and written). Exit 69: the port is in use by
-another process, usually the daemon (`sudo systemctl stop lunad@NAME` first; the
-message names the holder).
+Put the target square to the beam (or give --angle, at most 45 degrees), fill the
+2 degree beam with it (the spot is 3.5 cm wide per metre), and keep the scene still
+while it measures. Ctrl-C aborts: nothing is written. Exit 1: the port cannot be
+opened or is lost; too few readings; the sensor reads a distance more than 10 % (and
+5 cm) off --distance, so the target is not where the figures assume (they are
+reported, and --write writes nothing); or the figure --lux or --fit-k asks for could
+not be measured (amp_ref is still reported and written). Exit 69: the port is in use
+by another process, usually the daemon (`sudo systemctl stop lunad@NAME` first; the
+message names the holder). Exit 78: a flag out of its range, or the config file the
+daemon would read after --write refuses a figure (one out of range: a wrong
+--reflectivity, say) or is refused already; --write then writes nothing.
 """
 
 EPILOG = """\
@@ -111,6 +113,31 @@ to 4.8 mm from amp 100 to 2000, Table 3 (M05 p.10, 90 % target at 2 to 8 m) 1.1 
 3.7 mm. The default 4 mm is the fit to Table 2 from amp 400 up (filters/config.py)."""
 
 NOISE_ASKED_EXIT = 1  # --lux or --fit-k given and its figure not measured
+
+ANGLE_MAX_DEG = 45.0
+"""Steepest --angle taken, degrees: the edge of the paper's stable region (section V,
+angle < 45 deg). Every figure is divided by S = R cos(theta) (paper eq. 1), so an error
+in the angle grows by tan(theta) in them: 1.7 % per degree at 45 deg, 10 % at 80 deg,
+and without bound towards 90 deg, where cos(theta) goes to 0 (89.9999999 deg wrote
+amp_ref = 1.1e12). Steeper, the paper's measured signal also falls faster than
+cos(theta) does (section V: 20 % of normal at 60 deg, cos gives 50 %;
+docs/paper-model.md)."""
+
+LUX_MAX = 200_000.0
+"""Highest --lux taken, lux: above the brightest direct sunlight (about 120 klux), and
+the cap of ``lunad sim``'s light (sim/scenario.py, FIELD_LIMITS). A reading above it is
+a typo (an extra zero or three), and k = (c - sigma0) / L would be as many times too
+small (30000000 for 30000 wrote k = 2.06e-10, which the daemon refuses)."""
+
+VALUE_HINTS: dict[str, str] = {
+    "amp_ref": "is --reflectivity right? amp_ref is the median amp over R cos(angle) "
+    "(2 m / d)^2, so a reflectivity 1000 times too small gives an amp_ref 1000 times "
+    "too large",
+    "sigma0_m": "is --lux right? sigma0 is c - k L",
+    "k_m_per_lux": "is --lux right? k is (c - sigma0) / L, so a lux reading 1000 times "
+    "too large gives a k 1000 times too small",
+}
+"""What a measured figure the config refuses most likely comes from, by its key."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -284,7 +311,9 @@ def _toml_float(key: str, value: float) -> str:
     return f"{value:.1f}" if key == "amp_ref" else repr(float(f"{value:.3g}"))
 
 
-def write_filter_values(path: Path, values: Mapping[str, float]) -> None:
+def write_filter_values(
+    path: Path, values: Mapping[str, float], check: Callable[[Path], object] | None = None
+) -> None:
     """Set keys under ``[filter]`` in a TOML file, keeping everything else; atomic replace.
 
     A key already there keeps its line's place and comment; a new one goes after the
@@ -302,11 +331,15 @@ def write_filter_values(path: Path, values: Mapping[str, float]) -> None:
 
     Args:
         values: ``FilterConfig`` field name -> value, in its unit.
+        check: called with the new file, complete but not yet in ``path``'s place (a
+            temporary file beside it); what it returns is ignored, what it raises stops
+            the write, so a file the
+            daemon would refuse never replaces the one it takes.
 
     Raises:
         ValueError: the edit would not leave a file where every key under ``[filter]``
-            reads back as written (a layout this line-based edit does not follow); the
-            file is left as it was.
+            reads back as written (a layout this line-based edit does not follow), or
+            ``check`` raised it; the file is left as it was.
         OSError: the file cannot be read or replaced.
     """
     target = path.resolve()
@@ -361,6 +394,8 @@ def write_filter_values(path: Path, values: Mapping[str, float]) -> None:
                 os.fchown(f.fileno(), old.st_uid, old.st_gid)
             os.fchmod(f.fileno(), mode)
             f.write(new_text)
+        if check is not None:
+            check(Path(tmp))
         os.replace(tmp, target)
     except BaseException:
         with contextlib.suppress(OSError):
@@ -368,23 +403,68 @@ def write_filter_values(path: Path, values: Mapping[str, float]) -> None:
         raise
 
 
+def _refused_values(path: Path, values: Mapping[str, float]) -> str | None:
+    """Why writing ``values`` into ``path`` would give a config file the daemon refuses,
+    naming the key, the value and its likely cause; None when it would be taken.
+
+    The file is read again as it is now, without this run's source flags, as
+    ``lunad serve --config`` reads it; each value is checked as it will read back from
+    the file (``_toml_float``) with the file's other [filter] settings, in a
+    ``FilterConfig`` built as ``load_config`` builds it. A file that is refused already
+    is said to be so: this run's values are not what is wrong with it.
+    """
+    from lunad.daemon.config import load_config
+    from lunad.daemon.errors import ConfigError
+
+    stored: dict[str, Any] = {key: float(_toml_float(key, value)) for key, value in values.items()}
+    wanted = ", ".join(f"`{key} = {_toml_float(key, value)}`" for key, value in values.items())
+    try:
+        current = load_config(path, settings_required=False).filter.to_filter_config()
+    except ConfigError as exc:
+        return (
+            f"{path} is refused already, before this run's values ({exc}); fix that and "
+            f"run again, or add {wanted} under [filter] by hand"
+        )
+    for key in stored:
+        try:
+            replace(current, **{key: stored[key]})
+        except ValueError as exc:
+            return (
+                f"the measured {key} = {stored[key]:g} would make the daemon refuse {path} "
+                f"({exc}); {VALUE_HINTS[key]}"
+            )
+    try:
+        replace(current, **stored)
+    except ValueError as exc:
+        return f"the measured {', '.join(stored)} would make the daemon refuse {path} ({exc})"
+    return None
+
+
 def _flag_problem(args: argparse.Namespace) -> str | None:
     """What is wrong with the measurement flags, naming the flag, or None.
 
     Checked before the sensor opens: a value no calibration can use would otherwise be
     found only after ``--seconds`` of measuring (R cos(angle) outside (0, 1]), or not
-    at all (a distance of 0 or below, which only the mismatch warning reads).
+    at all (a distance of 0 or below, which only the mismatch warning reads), and a
+    typo in --angle or --lux (89.9999999 degrees, 30000000 lux) gave a figure the
+    config then refused.
     """
     if not 0 < args.reflectivity <= 1:
         return f"--reflectivity must be above 0 and at most 1, got {args.reflectivity}"
-    if not 0 <= args.angle < 90:
-        return f"--angle must be at least 0 and below 90 degrees, got {args.angle}"
+    if not 0 <= args.angle <= ANGLE_MAX_DEG:
+        return (
+            f"--angle must be from 0 to {ANGLE_MAX_DEG:g} degrees (every figure is divided "
+            f"by cos(angle), which steeper angles take towards 0), got {args.angle}"
+        )
     if not 0 < args.distance < math.inf:
         return f"--distance must be positive and finite (metres), got {args.distance}"
     if not 0 < args.seconds < math.inf:
         return f"--seconds must be positive and finite, got {args.seconds}"
-    if args.lux is not None and not 0 <= args.lux < math.inf:
-        return f"--lux must be 0 or more and finite (lux at the target), got {args.lux}"
+    if args.lux is not None and not 0 <= args.lux <= LUX_MAX:
+        return (
+            f"--lux must be from 0 to {LUX_MAX:g} (lux at the target; the brightest "
+            f"sunlight is about 120000), got {args.lux}"
+        )
     if args.fit_k and not (args.lux or 0) > 0:
         return "--fit-k needs --lux above 0: a lux meter reading at the target (20-40 klux)"
     return None
@@ -406,7 +486,11 @@ def add_parser(sub: Any) -> None:
     )
     p.add_argument("--distance", type=float, required=True, metavar="M", help="metres, above 0")
     p.add_argument(
-        "--angle", type=float, default=0.0, metavar="DEG", help="incidence angle, 0 to below 90"
+        "--angle",
+        type=float,
+        default=0.0,
+        metavar="DEG",
+        help=f"incidence angle, 0 to {ANGLE_MAX_DEG:g} (default 0: square to the beam)",
     )
     p.add_argument(
         "--seconds", type=float, default=5.0, metavar="S", help="how long to measure (default 5)"
@@ -415,8 +499,8 @@ def add_parser(sub: Any) -> None:
         "--lux",
         type=float,
         metavar="L",
-        help="ambient light at the target from a lux meter (default: taken as dark, 0;"
-        " indoor light of 500 lux adds about 0.1 mm to sigma0)",
+        help=f"ambient light at the target from a lux meter, 0 to {LUX_MAX:g} (default:"
+        " taken as dark, 0; indoor light of 500 lux adds about 0.1 mm to sigma0)",
     )
     p.add_argument(
         "--fit-k",
@@ -592,15 +676,24 @@ def run(args: argparse.Namespace) -> int:
         if cal.k is not None:
             values["k_m_per_lux"] = cal.k.value
         keys = ", ".join(values)
+        path = Path(args.config)
+        if (refused := _refused_values(path, values)) is not None:
+            print(f"lunad calibrate: --write: nothing written: {refused}", file=sys.stderr)
+            return EX_CONFIG
+
+        def loads(new: Path) -> None:
+            """The new file as the daemon will read it (the check above covers [filter]
+            alone); named as ``path`` in the message, not as the temporary file."""
+            try:
+                load_config(new)
+            except ConfigError as exc:
+                said = str(exc).replace(str(new), str(path))
+                raise ValueError(f"nothing written: {path} would be refused: {said}") from None
+
         try:
-            write_filter_values(Path(args.config), values)
+            write_filter_values(path, values, check=loads)
         except (OSError, ValueError) as exc:
             print(f"lunad calibrate: --write: {exc}", file=sys.stderr)
-            return EX_CONFIG
-        try:
-            load_config(args.config)
-        except ConfigError as exc:  # the file was broken before; say so plainly
-            print(f"lunad calibrate: wrote {keys}, but the file is invalid: {exc}", file=sys.stderr)
             return EX_CONFIG
         print(f"wrote [filter] {keys} to {args.config}; `systemctl reload lunad@NAME` applies it")
     return code
