@@ -3,13 +3,17 @@
 from __future__ import annotations
 
 import os
+import random
 import struct
+import subprocess
 import tempfile
 import threading
 import time
+import zlib
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from types import SimpleNamespace
+from typing import Any
 
 import pytest
 from hypothesis import given, settings
@@ -20,6 +24,8 @@ from lunad.daemon.errors import LunadError, SourceOpenError
 from lunad.daemon.sources.base import Chunk
 from lunad.daemon.sources.recording import (
     MAGIC,
+    MAX_RECORD_BYTES,
+    MAX_TORN_BYTES,
     Pacer,
     Recorder,
     RecordFormatError,
@@ -29,6 +35,9 @@ from lunad.daemon.sources.recording import (
 )
 from lunad.daemon.sources.replay import ReplaySource
 from lunad.protocol import FrameParser, encode_frame
+from lunad.protocol.client import Subscriber
+from lunad.protocol.messages import I64_MAX, HealthMessage
+from lunad.sim.pty_device import PtyDevice
 
 RECORD_OVERHEAD = 16  # t_mono_ns u64 + length u32 + crc32 u32
 MS = 1_000_000  # nanoseconds
@@ -75,7 +84,7 @@ def test_round_trip_and_header(tmp_path: Path) -> None:
 
 
 chunk_lists = st.lists(
-    st.builds(Chunk, st.binary(max_size=64), st.integers(min_value=0, max_value=2**64 - 1)),
+    st.builds(Chunk, st.binary(max_size=64), st.integers(min_value=0, max_value=I64_MAX)),
     max_size=20,
 )
 
@@ -94,8 +103,10 @@ def test_any_chunks_round_trip(chunks: list[Chunk], desc: str) -> None:
 
 def test_recorder_rejects_misuse(tmp_path: Path) -> None:
     with Recorder(tmp_path / "m.lunarec") as rec:
-        with pytest.raises(ValueError, match="u64"):
+        with pytest.raises(ValueError, match="an i64"):
             rec(Chunk(b"x", -1))
+        with pytest.raises(ValueError, match="an i64"):  # a time its reader would skip
+            rec(Chunk(b"x", I64_MAX + 1))
         with pytest.raises(ValueError, match="at most"):
             rec(Chunk(bytes((1 << 20) + 1), 0))
     with pytest.raises(ValueError, match="closed"):
@@ -181,7 +192,7 @@ def first_record_offset(whole: bytes) -> int:
     [
         pytest.param(lambda b: b[:-5], id="last record cut short"),
         pytest.param(lambda b: b + bytes(60), id="a tail of zeros"),
-        pytest.param(lambda b: b + struct.pack("<QII", 5, 0xFFFF_FFFF, 0), id="huge length at end"),
+        pytest.param(lambda b: b + bytes(MAX_TORN_BYTES), id="the most zeros a tear leaves"),
     ],
 )
 def test_a_recording_cut_short_is_a_torn_tail(
@@ -237,8 +248,206 @@ def test_garbage_length_does_not_swallow_memory(tmp_path: Path) -> None:
         f.write(struct.pack("<QII", 5, 0xFFFF_FFFF, 0) + b"junk")
     with Replay(path) as rep:
         assert list(rep) == CHUNKS[:1]
-        assert rep.torn_records == 1 and not rep.damaged
+        assert rep.torn_records == 1
+        assert rep.damaged  # no record lunad writes claims 4 GiB: not a tear
         assert rep.trailing_bytes == RECORD_OVERHEAD + 4
+
+
+TEST_HEADER_BYTES = 32 + len(b"test") + 4
+"""The header ``record`` writes: the fixed part, the description "test", the CRC."""
+FIVE_FRAMES = b"".join(encode_frame(300 + i, 1000, 2400) for i in range(5))
+"""One read of a 250 Hz sensor: a 61-byte record."""
+HOLE_AT, HOLE_BYTES = 40_000, 20_000
+
+
+def records_end(chunks: Iterable[Chunk]) -> int:
+    """The byte just after ``chunks``, recorded by ``record`` into a new file."""
+    return TEST_HEADER_BYTES + sum(RECORD_OVERHEAD + len(c.data) for c in chunks)
+
+
+def hole_in_3000_records(path: Path) -> list[Chunk]:
+    """3000 reads, then 20 000 bytes zeroed at byte 40 000 (a bad block of the card):
+    longer than the look-ahead after a bad record, so no good record is found after it.
+    Returns the chunks still readable, those wholly before the hole."""
+    chunks = [Chunk(FIVE_FRAMES, 10**9 + k * 4 * MS) for k in range(3000)]
+    record(path, chunks)
+    data = bytearray(path.read_bytes())
+    data[HOLE_AT : HOLE_AT + HOLE_BYTES] = bytes(HOLE_BYTES)
+    path.write_bytes(bytes(data))
+    return chunks[: (HOLE_AT - TEST_HEADER_BYTES) // (RECORD_OVERHEAD + len(FIVE_FRAMES))]
+
+
+def noise_after_the_header(path: Path) -> list[Chunk]:
+    """A header, then 100 KB of noise (another file's blocks after a crash)."""
+    record(path, [])
+    with open(path, "ab") as f:
+        f.write(random.Random(7).randbytes(100_000))
+    return []
+
+
+def zeros_past_a_tear(path: Path) -> list[Chunk]:
+    """One byte more zeros than a torn record leaves."""
+    record(path, CHUNKS)
+    with open(path, "ab") as f:
+        f.write(bytes(MAX_TORN_BYTES + 1))
+    return CHUNKS
+
+
+def a_length_no_record_has(path: Path) -> list[Chunk]:
+    """A last record header claiming one byte more than ``Recorder`` writes."""
+    record(path, CHUNKS)
+    with open(path, "ab") as f:
+        f.write(struct.pack("<QII", 5, MAX_RECORD_BYTES + 1, 0))
+    return CHUNKS
+
+
+@pytest.mark.parametrize(
+    "damage",
+    [
+        pytest.param(hole_in_3000_records, id="20 000 zeros in 3000 records"),
+        pytest.param(noise_after_the_header, id="100 KB of noise after the header"),
+        pytest.param(zeros_past_a_tear, id="a tear's most zeros and one byte"),
+        pytest.param(a_length_no_record_has, id="a length past MAX_RECORD_BYTES"),
+    ],
+)
+def test_what_one_torn_record_cannot_leave_is_damage(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, damage: Callable[[Path], list[Chunk]]
+) -> None:
+    """Damage longer than the look-ahead found no good record after it, and was taken for
+    a torn last record: the replay said at INFO that a power cut had cut it short, and
+    appending cut the file there, deleting (for the hole) 78 % of its good records after
+    one warning. A power cut tears one record: more bytes than that, or a length no
+    record has, is damage, warned about by the reader and refused by the appender."""
+    path = tmp_path / "damaged.lunarec"
+    kept = damage(path)
+    hostile = path.read_bytes()
+    good_end = records_end(kept)
+    skipped = len(hostile) - good_end
+    with caplog.at_level("INFO"), Replay(path) as rep:
+        assert list(rep) == kept
+        assert rep.damaged and rep.torn_records == 1 and rep.trailing_bytes == skipped
+    assert [r.levelname for r in caplog.records] == ["WARNING"]
+    assert f"damaged: a corrupt record at byte {good_end} (" in caplog.text
+    assert f"the {skipped} bytes from there on" in caplog.text
+    assert "torn last record" not in caplog.text
+    caplog.clear()
+    with pytest.raises(RecordFormatError, match=f"damaged at byte {good_end} .*record to a new"):
+        Recorder(path)
+    assert path.read_bytes() == hostile  # untouched
+    assert "dropping" not in caplog.text
+
+
+def test_lunad_record_and_serve_refuse_a_hole_they_cut_the_file_at(
+    device: Callable[..., PtyDevice], tmp_path: Path, endpoint: str, helpers: Any
+) -> None:
+    """The reviewer's file through the real commands: ``lunad record --out`` and ``lunad
+    serve --record`` warned of "a torn last record (143045 bytes)", cut the file at the
+    hole and recorded on, the good records after it gone. Both now refuse it as the
+    damaged file it is, with one line and exit 78, and leave it byte for byte."""
+    dev = device(rate_hz=100, output_enabled=False)
+    path = tmp_path / "hole.lunarec"
+    hole_in_3000_records(path)
+    hostile = path.read_bytes()
+    commands = (
+        ["record", "--device", dev.path, "--out", str(path), "--duration", "5"],
+        ["serve", "--device", dev.path, "--publish", endpoint, "--record", str(path)],
+    )
+    for args in commands:
+        r = subprocess.run([*helpers.lunad, *args], capture_output=True, text=True, timeout=30)
+        assert r.returncode == 78, r.stderr
+        errors = [line for line in r.stderr.splitlines() if line.startswith("lunad ")]
+        assert len(errors) == 1, r.stderr
+        assert "damaged at byte" in errors[0] and "record to a new file" in errors[0]
+        assert "dropping a torn" not in r.stderr and "Traceback" not in r.stderr
+        assert path.read_bytes() == hostile
+
+
+@pytest.mark.parametrize("cut", [1, 4096], ids=["one byte short", "only its header"])
+def test_a_cut_through_the_longest_read_is_still_a_tear(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, cut: int
+) -> None:
+    """A record holds one read of the port, at most 4096 bytes: a power cut through the
+    longest is a torn record (INFO; appending cuts it off) under the bound on a tear."""
+    longest = Chunk(bytes(range(256)) * 16, 2_000 * MS)
+    path = tmp_path / "long.lunarec"
+    record(path, [*CHUNKS, longest])
+    path.write_bytes(path.read_bytes()[:-cut])
+    with caplog.at_level("INFO"), Replay(path) as rep:
+        assert list(rep) == CHUNKS
+        assert rep.torn_records == 1 and not rep.damaged
+    assert [r.levelname for r in caplog.records] == ["INFO"]
+    assert "torn last record" in caplog.text
+    with Recorder(path) as rec:
+        assert rec.truncated_bytes == RECORD_OVERHEAD + len(longest.data) - cut
+    assert read_all(path) == (CHUNKS, 0)
+
+
+def record_at(t_mono_ns: int, data: bytes) -> bytes:
+    """One record laid out as ``Recorder``'s table says, for a time it refuses to write."""
+    head = struct.pack("<QI", t_mono_ns, len(data))
+    return head + struct.pack("<I", zlib.crc32(data, zlib.crc32(head))) + data
+
+
+@pytest.mark.parametrize("t_mono_ns", [I64_MAX + 1, 18_446_744_073_219_551_615, 2**64 - 1])
+def test_a_time_past_the_messages_i64_is_skipped(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, t_mono_ns: int
+) -> None:
+    """A record whose CRC checks but whose t_mono_ns no i64 holds was replayed, and the
+    daemon published that time, outside the message contract. It is skipped, counted and
+    warned about; its CRC vouches for its length, so the records after it are read, and
+    appending goes on after it rather than cutting it off as torn."""
+    path = tmp_path / "t.lunarec"
+    record(path, CHUNKS[:1])
+    with open(path, "ab") as f:
+        f.write(record_at(t_mono_ns, b"\x59\x59\x10\x00"))
+    with Recorder(path) as rec:
+        assert rec.truncated_bytes == 0
+        for chunk in CHUNKS[1:]:
+            rec(chunk)
+    with caplog.at_level("INFO"), Replay(path) as rep:
+        assert list(rep) == CHUNKS
+        assert rep.skipped_records == 1
+        assert rep.torn_records == 0 and not rep.damaged
+    assert [r.levelname for r in caplog.records] == ["WARNING"]
+    first = records_end(CHUNKS[:1])
+    assert f"skipped 1 records (the first at byte {first}) whose t_mono_ns" in caplog.text
+
+
+def test_the_largest_i64_time_is_kept(tmp_path: Path) -> None:
+    path = tmp_path / "max.lunarec"
+    record(path, [Chunk(b"x", I64_MAX)])
+    with Replay(path) as rep:
+        assert list(rep) == [Chunk(b"x", I64_MAX)]
+        assert rep.skipped_records == 0
+
+
+def test_a_replay_publishes_no_time_outside_the_contract(
+    start_daemon: Any, endpoint: str, tmp_path: Path
+) -> None:
+    """``lunad serve --replay`` published "t_mono_ns":18446744073219551615, which no
+    subscriber decodes (an i64). The record is skipped: every message decodes, the last
+    health counts the good frames only, and the log says what was skipped."""
+    path = tmp_path / "t.lunarec"
+    with Recorder(path, "test", frame_rate_hz=250) as rec:
+        for k in range(30):
+            rec(Chunk(FIVE_FRAMES, 10**12 + (k + 1) * 20 * MS))
+    with open(path, "ab") as f:
+        f.write(record_at(18_446_744_073_219_551_615, FIVE_FRAMES))
+    with Recorder(path) as rec:  # well under the daemon's send limit of 1000 messages
+        for k in range(30, 60):
+            rec(Chunk(FIVE_FRAMES, 10**12 + (k + 1) * 20 * MS))
+    d = start_daemon("--replay", str(path), "--speed", "max", "--publish", endpoint)
+    last: HealthMessage | None = None
+    with Subscriber(endpoint) as sub:
+        deadline = time.monotonic() + 20.0
+        while time.monotonic() < deadline and (last is None or last.state != "stopped"):
+            msg = sub.recv(timeout_s=1.0)
+            if isinstance(msg, HealthMessage):
+                last = msg
+        bad_messages = sub.bad_messages
+    assert last is not None and last.state == "stopped", d.log
+    assert last.frames == 60 * 5 and bad_messages == 0, d.log
+    assert "skipped 1 records" in d.log and "Traceback" not in d.log
 
 
 @pytest.mark.parametrize(

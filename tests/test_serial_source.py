@@ -64,6 +64,64 @@ def test_hang_up_is_source_lost(line: tuple[int, SerialSource]) -> None:
             src.read(2.0)
 
 
+def test_a_read_of_a_url_port_takes_at_most_one_read_of_a_tty() -> None:
+    """pyserial's path (URLs) read all that waited: after a stall an ``rfc2217://``
+    bridge could hand over 64 KiB in one chunk, one record of a recording, which a power
+    cut would tear into more than a torn record may be (``MAX_TORN_BYTES``). A read
+    takes at most ``READ_MAX_BYTES``, as ``os.read`` on a tty does; the rest comes in
+    the next reads. ``spy://`` on a pty takes pyserial's path and counts what waits as
+    those bridges do."""
+    from lunad.daemon.sources.recording import MAX_TORN_BYTES
+    from lunad.daemon.sources.serial import READ_MAX_BYTES
+
+    sent = FRAME * 1000  # 9 kB: more than two reads, less than a pty holds
+    master, slave = os.openpty()
+    src = SerialSource(f"spy://{os.ttyname(slave)}")
+    try:
+        os.write(master, sent)
+        time.sleep(0.2)
+        sizes: list[int] = []
+        deadline = time.monotonic() + 5.0
+        while sum(sizes) < len(sent) and time.monotonic() < deadline:
+            chunk = src.read(0.5)
+            if chunk:
+                sizes.append(len(chunk[0]))
+    finally:
+        src.close()
+        os.close(master)
+        os.close(slave)
+    assert sum(sizes) == len(sent)
+    assert max(sizes) == READ_MAX_BYTES and 2 * READ_MAX_BYTES + 16 <= MAX_TORN_BYTES
+
+
+def test_a_socket_port_reads_what_came_not_two_bytes_at_a_time() -> None:
+    """pyserial's ``socket://`` says 1 byte waits whenever any do, so each read took 2
+    bytes: 5 reads a frame, and in a recording 5 records of 16 bytes' overhead each.
+    A read takes what came, up to ``READ_MAX_BYTES``."""
+    import socket
+
+    from lunad.daemon.sources.serial import READ_MAX_BYTES
+
+    sent = FRAME * 1000
+    with socket.create_server(("127.0.0.1", 0)) as server:
+        port = server.getsockname()[1]
+        src = SerialSource(f"socket://127.0.0.1:{port}")
+        try:
+            conn, _ = server.accept()
+            conn.sendall(sent)
+            sizes: list[int] = []
+            deadline = time.monotonic() + 5.0
+            while sum(sizes) < len(sent) and time.monotonic() < deadline:
+                chunk = src.read(0.5)
+                if chunk:
+                    sizes.append(len(chunk[0]))
+            conn.close()
+        finally:
+            src.close()
+    assert sum(sizes) == len(sent)
+    assert len(sizes) < len(sent) // 100 and max(sizes) <= READ_MAX_BYTES, sizes[:20]
+
+
 def test_a_socket_port_whose_server_went_away_is_source_lost() -> None:
     """``socket://`` (ser2net, a Wi-Fi bridge): the server closing is a lost source the
     daemon reconnects to, not an exception out of ``read`` that ends it."""

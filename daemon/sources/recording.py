@@ -9,8 +9,11 @@ filter on the same inputs and publishes the same readings as the live run did.
 
 Power cuts are expected on a robot: a record is written with one ``write`` call, so a cut
 leaves at most one torn record at the end. The reader stops quietly before it (counted in
-``torn_records``); opening the file for append truncates it first. The format table is in
-``Recorder``'s docstring.
+``torn_records``); opening the file for append truncates it first. Bytes after the last
+good record that cannot be one torn record (``_tail_damage``: good records after them,
+more than ``MAX_TORN_BYTES`` of them, or a length no record has) are a damaged file: the
+reader warns, and appending is refused rather than cutting the file there. The format
+table is in ``Recorder``'s docstring.
 
 One file takes one writer: a ``Recorder`` holds an exclusive ``flock`` on its file until it
 is closed, and a second one (another ``lunad record``, or ``lunad serve --record`` on the
@@ -38,6 +41,7 @@ from typing import Protocol
 from lunad.daemon.errors import LunadError
 from lunad.daemon.sources.base import Chunk
 from lunad.protocol.file_kind import file_kind
+from lunad.protocol.messages import I64_MAX
 
 log = logging.getLogger(__name__)
 
@@ -49,13 +53,13 @@ _HEADER = struct.Struct("<8sHHqqH")  # magic, version, flags, unix ns, mono ns, 
 _RATE = struct.Struct("<H")  # version 2: the sensor's frame rate, Hz (0: not known)
 _CRC = struct.Struct("<I")
 _RECORD = struct.Struct("<QII")  # t_mono_ns, length, crc32
-_RECORD_CRC_SPAN = 12  # bytes of _RECORD the CRC covers: t_mono_ns and length
+_RECORD_HEAD = struct.Struct("<QI")  # the start of _RECORD the CRC covers: t_mono_ns, length
+_RECORD_CRC_SPAN = _RECORD_HEAD.size
 MAX_DESC_BYTES = 1024
 MAX_RECORD_BYTES = 1 << 20
 """Longest chunk accepted (1 MiB); a larger length on read is taken as corruption, so a
 garbage length field cannot make the reader swallow the rest of the file."""
 FSYNC_INTERVAL_S = 1.0
-_U64_MAX = (1 << 64) - 1
 
 
 class _ReadableFile(Protocol):
@@ -189,9 +193,15 @@ class _ScanState:
     good_end: int
     torn_records: int = 0
     trailing_bytes: int = 0
-    damaged: bool = False
-    """Good records follow the bad one (``_holds_a_record``): not a last record cut
-    short by a power cut, but a file damaged in the middle, whose rest is lost."""
+    damage: str = ""
+    """Why the bytes after the good records cannot be a last record cut short by a power
+    cut (``_tail_damage``): the file is damaged there, and its rest is lost. Empty when
+    they can be, or when there are none."""
+    skipped_records: int = 0
+    """Whole records (their CRC checks) stepped over for a ``t_mono_ns`` past
+    ``I64_MAX``."""
+    first_skipped_at: int = 0
+    """Byte offset of the first of those records."""
 
 
 def _records(f: _ReadableFile, state: _ScanState) -> Iterator[Chunk]:
@@ -199,7 +209,16 @@ def _records(f: _ReadableFile, state: _ScanState) -> Iterator[Chunk]:
 
     A bad record (short, oversized length, wrong CRC) ends the scan: its length can no
     longer be trusted, so nothing after it can be found. ``state`` records how far the
-    good part goes and how many bytes were left unread.
+    good part goes, how many bytes were left unread, and whether they can be a torn last
+    record (``_tail_damage``).
+
+    A record whose CRC checks but whose ``t_mono_ns`` is past ``I64_MAX`` (2**63 - 1 ns)
+    is not yielded: the message contract carries the time as an i64, and no monotonic
+    clock lunad reads gets there (292 years of uptime), so it is damage that happened to
+    keep its CRC, or a file lunad did not write. It is counted in
+    ``state.skipped_records`` and the scan goes on after it, since its CRC vouches for
+    its length: the rest of the file is kept, as a header whose frame rate the sensor
+    cannot run at has that field left out and the rest read (``ReplaySource``).
     """
     pos = state.good_end
     while True:
@@ -214,28 +233,43 @@ def _records(f: _ReadableFile, state: _ScanState) -> Iterator[Chunk]:
                     len(data) == length
                     and zlib.crc32(data, zlib.crc32(head[:_RECORD_CRC_SPAN])) == crc
                 ):
-                    pos += _RECORD.size + length
+                    start, pos = pos, pos + _RECORD.size + length
                     state.good_end = pos
-                    yield Chunk(data, t_mono_ns)
+                    if t_mono_ns <= I64_MAX:
+                        yield Chunk(data, t_mono_ns)
+                    else:
+                        if not state.skipped_records:
+                            state.first_skipped_at = start
+                        state.skipped_records += 1
                     continue
-        f.seek(pos + 1)
-        tail = f.read(RESYNC_WINDOW_BYTES + _RECORD.size + MAX_RESYNC_RECORD_BYTES) or b""
+        f.seek(pos)
+        tail = f.read(1 + RESYNC_WINDOW_BYTES + _RECORD.size + MAX_RESYNC_RECORD_BYTES) or b""
         f.seek(0, os.SEEK_END)
         state.torn_records = 1
         state.trailing_bytes = f.tell() - pos
-        state.damaged = _holds_a_record(tail)
+        state.damage = _tail_damage(tail, state.trailing_bytes)
         return
 
 
 RESYNC_WINDOW_BYTES = 16 * 1024
 """How far past a bad record ``_records`` looks for a good one, to tell a file damaged
-in the middle from one cut short: a record holds one read of the port (at most 4096
-bytes, daemon/sources/serial.py), so the next one starts within this. Bounded, with
+in the middle from one cut short: a record holds one read of the port (at most
+``READ_MAX_BYTES``, 4096 bytes, daemon/sources/serial.py), so the next one starts
+within this. Bounded, with
 ``MAX_RESYNC_RECORD_BYTES``, so that a hostile file costs at most this many offsets,
 once, at the end of its good records: 5 ms here on random bytes, 11 ms on zeros
 (every offset a record of length 0, its CRC worked out)."""
 MAX_RESYNC_RECORD_BYTES = 8 * 1024
 """The longest record the look-ahead takes as found: twice the longest read of a port."""
+MAX_TORN_BYTES = _RECORD.size + MAX_RESYNC_RECORD_BYTES
+"""The most bytes a power cut leaves after the last good record (8208): it tears one
+record, and a record holds one read of a port, at most half of
+``MAX_RESYNC_RECORD_BYTES``. A longer tail is damage however quiet it looks (zeros or
+noise past the look-ahead may hide good records), so appending refuses it rather than
+delete it; and every offset of a tail this short has been searched for a good record
+(``RESYNC_WINDOW_BYTES`` is longer). ``Recorder`` takes chunks of up to
+``MAX_RECORD_BYTES``, which lunad's sources never make: a cut through one longer than
+this reads as damage, and the file is refused for appending, not cut."""
 
 
 def _holds_a_record(tail: bytes) -> bool:
@@ -253,6 +287,29 @@ def _holds_a_record(tail: bytes) -> bool:
         if zlib.crc32(tail[at + size : end], zlib.crc32(head)) == crc:
             return True
     return False
+
+
+def _tail_damage(tail: bytes, trailing_bytes: int) -> str:
+    """Why the ``trailing_bytes`` after the last good record, of which ``tail`` holds the
+    first (from the bad record's first byte), cannot be a torn last record; "" when they
+    can be.
+
+    A power cut tears one record, the last: it leaves at most ``MAX_TORN_BYTES`` (a start
+    of that record, or zeros the filesystem had not yet written over), no good record
+    after them, and a length, if the bytes get that far, that ``Recorder`` could have
+    written. Anything else is a file damaged there. The reader (INFO for a tear, WARNING
+    for damage) and the appender (which cuts off a tear and refuses damage, so as not to
+    delete good records it cannot see) both decide by this.
+    """
+    if _holds_a_record(tail[1:]):
+        return "good records follow a corrupt one"
+    if trailing_bytes > MAX_TORN_BYTES:
+        return f"more than the {MAX_TORN_BYTES} bytes one torn record leaves"
+    if len(tail) >= _RECORD_HEAD.size:
+        _t_mono_ns, length = _RECORD_HEAD.unpack_from(tail)
+        if length > MAX_RECORD_BYTES:
+            return f"a record there claims {length} bytes; none holds more than {MAX_RECORD_BYTES}"
+    return ""
 
 
 _NO_LOCKS = (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS)
@@ -313,16 +370,19 @@ class Recorder:
     32      n bytes        source description, UTF-8 (e.g. ``serial /dev/ttyAMA0 115200 Bd``)
     32+n    u32            CRC-32 of the 32+n bytes before it
     **record**, repeated to the end of the file
-    +0      u64            ``t_mono_ns``: ``time.monotonic_ns()`` when the bytes were read
+    +0      u64            ``t_mono_ns``: ``time.monotonic_ns()`` when the bytes were read,
+                           at most 2**63 - 1 (the messages' i64; a larger one is skipped)
     +8      u32            ``length``: number of data bytes, at most 1 MiB
     +12     u32            CRC-32 of the 12 bytes at +0, then of the data
     +16     length bytes   data: raw bytes exactly as the source returned them
     ======  =============  ===============================================================
 
     The file is append-only. Opening an existing recording checks its header, truncates
-    a torn last record (left by a power cut; logged) and appends after the last good
-    one; a file damaged in the middle (good records after a corrupt one) is refused
-    (``RecordFormatError``), since cutting it there would delete them. The header keeps
+    a torn last record (left by a power cut, at most ``MAX_TORN_BYTES``; logged) and
+    appends after the last good one. A file damaged after its last good record (good
+    records after a corrupt one, more bytes than one torn record leaves, or a length no
+    record has: ``_tail_damage``) is refused (``RecordFormatError``) and left as it is,
+    since cutting it there could delete good records. The header keeps
     the first recorder's version, description, creation time and frame rate. Records
     appended after a reboot restart the monotonic clock, so ``t_mono_ns`` may step
     back; ``paced`` treats that as no gap. The recorder holds an exclusive ``flock`` on
@@ -414,11 +474,11 @@ class Recorder:
             state = _ScanState(good_end=f.tell())
             for _ in _records(f, state):
                 pass
-            if state.damaged:  # cutting it here would delete the good records after it
+            if state.damage:  # cutting it here could delete good records after it
                 raise RecordFormatError(
-                    f"{self.path}: damaged at byte {state.good_end} (good records follow a "
-                    f"corrupt one); appending would drop the {state.trailing_bytes} bytes "
-                    "from there on: record to a new file"
+                    f"{self.path}: damaged at byte {state.good_end} ({state.damage}); "
+                    f"appending would drop the {state.trailing_bytes} bytes from there on: "
+                    "record to a new file"
                 )
             if state.trailing_bytes:
                 log.warning(
@@ -438,7 +498,8 @@ class Recorder:
         """Append ``chunk`` as one record.
 
         Raises:
-            ValueError: the chunk is longer than 1 MiB or its time is not a u64.
+            ValueError: the chunk is longer than 1 MiB, or its time is negative or past
+                2**63 - 1 ns (the messages' i64, which ``Replay`` skips past).
             OSError: the write failed (disk full, card removed); the file keeps every
                 earlier record and at most one torn one.
         """
@@ -448,9 +509,9 @@ class Recorder:
         data = chunk.data
         if len(data) > MAX_RECORD_BYTES:
             raise ValueError(f"chunk of {len(data)} bytes; at most {MAX_RECORD_BYTES}")
-        if not 0 <= chunk.t_mono_ns <= _U64_MAX:
-            raise ValueError(f"t_mono_ns {chunk.t_mono_ns} does not fit in a u64")
-        head = struct.pack("<QI", chunk.t_mono_ns, len(data))
+        if not 0 <= chunk.t_mono_ns <= I64_MAX:
+            raise ValueError(f"t_mono_ns {chunk.t_mono_ns} is not in 0..2**63 - 1 (an i64)")
+        head = _RECORD_HEAD.pack(chunk.t_mono_ns, len(data))
         record = head + _CRC.pack(zlib.crc32(data, zlib.crc32(head))) + data
         view = memoryview(record)
         while view:  # a regular file takes it all at once unless the disk fills up
@@ -485,10 +546,13 @@ class Replay:
     """Reads a recording back as ``Chunk``s with their recorded ``t_mono_ns``.
 
     ``for chunk in Replay(path)`` yields every good record once, in file order, and
-    stops quietly before a torn or corrupt record (``torn_records`` becomes 1 and
+    stops before a torn or corrupt record (``torn_records`` becomes 1 and
     ``trailing_bytes`` says how much was skipped). A power cut can only tear the last
-    record; a bad record earlier means the file was damaged, and the rest of it is lost
-    because the lengths after it cannot be trusted.
+    record, and that is logged at INFO; what cannot be one torn record (``damaged``:
+    see ``_tail_damage``) means the file was damaged, logged as a WARNING, and the rest
+    of it is lost because the lengths after it cannot be trusted. A record whose CRC
+    checks but whose ``t_mono_ns`` is past 2**63 - 1 ns is skipped and reading goes on
+    after it (``skipped_records``; one WARNING at the end).
 
     Raises:
         RecordFormatError: (from the constructor) the file is not a regular file, or
@@ -516,7 +580,12 @@ class Replay:
     @property
     def damaged(self) -> bool:
         """The bad record was not a last one cut short: the file was damaged."""
-        return self._state.damaged
+        return bool(self._state.damage)
+
+    @property
+    def skipped_records(self) -> int:
+        """Whole records not yielded for a ``t_mono_ns`` past 2**63 - 1 ns."""
+        return self._state.skipped_records
 
     @property
     def trailing_bytes(self) -> int:
@@ -532,12 +601,21 @@ class Replay:
             self.bytes += len(chunk.data)
             yield chunk
         state = self._state
-        if state.damaged:
+        if state.skipped_records:
             log.warning(
-                "%s: damaged: a corrupt record at byte %d; the %d bytes from there on "
+                "%s: skipped %d records (the first at byte %d) whose t_mono_ns is past "
+                "2**63 - 1 ns, the messages' i64: not a time lunad records",
+                self.path,
+                state.skipped_records,
+                state.first_skipped_at,
+            )
+        if state.damage:
+            log.warning(
+                "%s: damaged: a corrupt record at byte %d (%s); the %d bytes from there on "
                 "(%.0f %% of the file) cannot be read and were skipped",
                 self.path,
                 state.good_end,
+                state.damage,
                 state.trailing_bytes,
                 100.0 * state.trailing_bytes / max(1, state.good_end + state.trailing_bytes),
             )

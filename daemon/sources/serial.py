@@ -42,6 +42,11 @@ import serial
 from lunad.daemon.errors import SourceLostError, SourceOpenError
 from lunad.daemon.sources.base import Source
 
+READ_MAX_BYTES = 4096
+"""Most bytes one read takes (455 frames): a record of a recording holds one read, and
+a recording's reader takes at most two reads' worth after its last good record as a
+record a power cut tore (``MAX_TORN_BYTES``, recording.py); what is left waits in the
+kernel or the socket for the next read."""
 PATH_CHECK_S = 1.0
 """A silent port checks at most this often that its path still names it (two ``stat``
 calls): a sensor that stops answering is told from a moved name within about this,
@@ -244,6 +249,9 @@ class SerialSource(Source):
             poller.register(self._fd, select.POLLIN)
             poller.register(self._abort, select.POLLIN)
             self._poll = poller.poll
+        # pyserial's socket:// counts a readable socket as 1 byte waiting (select), so
+        # its reads would take 2 bytes each: 5 reads and 5 records a frame at 250 Hz.
+        self._waiting_is_one = type(ser).__module__.endswith(".protocol_socket")
         # The node the path named at open, for ``_check_path``; None for URL ports.
         self._opened: os.stat_result | None = None
         self._opened_name = ""
@@ -292,7 +300,7 @@ class SerialSource(Source):
                 os.read(self._abort, 1000)  # cancel() woke us
                 if len(ready) == 1:
                     return b""  # nothing to read; when both are ready, data first
-            data = os.read(fd, 4096)
+            data = os.read(fd, READ_MAX_BYTES)
         except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
             # TypeError/AttributeError: pyserial's read on a port closed under it;
             # SerialException: also a ``socket://`` port whose server went away.
@@ -341,14 +349,22 @@ class SerialSource(Source):
         raise SourceLostError(why)
 
     def _read_generic(self, timeout_s: float | None) -> bytes:
+        """A byte within ``timeout_s``, then what waits after it, at most
+        ``READ_MAX_BYTES`` in all: ``in_waiting`` says how much, except on a
+        ``socket://`` port, where a read that does not wait (timeout 0: one ``recv``)
+        takes what came."""
         ser = self._ser
         if ser.timeout != timeout_s:
             ser.timeout = timeout_s
         data = ser.read(1)
         if data:
-            waiting = ser.in_waiting
-            if waiting:
-                data += ser.read(waiting)
+            if self._waiting_is_one:
+                ser.timeout = 0
+                data += ser.read(READ_MAX_BYTES - 1)
+            else:
+                waiting = ser.in_waiting
+                if waiting:
+                    data += ser.read(min(waiting, READ_MAX_BYTES - 1))
         return bytes(data)
 
     def write(self, data: bytes) -> None:
