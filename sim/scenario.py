@@ -59,6 +59,10 @@ FIELD_LIMITS: dict[str, tuple[float, float]] = {
 }
 """Allowed range of each truth field, inclusive, in its unit (metres, 0..1 and up to
 10 for retroreflectors, degrees, lux); ``lunad sim``'s truth flags use the same."""
+MAX_DURATION_S = 86_400.0
+"""A scenario lasts at most a day, and its tables' times lie within it: a frame index
+is seconds times the rate (21.6 M frames at 250 Hz), and ``duration_s = 1e308`` gave
+none at all. A longer run plays one again and again (``lunad sim --loop``)."""
 _TOP_KEYS = {"name", "description", "rate_hz", "duration_s", "initial", "keyframe", "step"}
 _INTERP = ("linear", "hold")
 
@@ -148,8 +152,11 @@ class Scenario:
 
     def with_duration(self, duration_s: float) -> Scenario:
         """The same scenario cut (or held) to ``duration_s`` seconds."""
-        if not duration_s > 0:
-            raise ScenarioError(f"duration_s must be positive, got {duration_s!r}")
+        if not 0 < duration_s <= MAX_DURATION_S:
+            raise ScenarioError(
+                f"duration_s must be above 0 and at most {MAX_DURATION_S:g} s (a day),"
+                f" got {duration_s!r}"
+            )
         steps = tuple(t for t in self.step_times_s if t < duration_s)
         return replace(self, duration_s=float(duration_s), step_times_s=steps)
 
@@ -263,8 +270,10 @@ def parse_scenario(text: str, name: str = "scenario", source: str = "<string>") 
             if "t_s" not in entry:
                 raise ScenarioError(f"{where}: t_s (seconds) is required")
             t = _number(where, "t_s", entry["t_s"])
-            if t < 0:
-                raise ScenarioError(f"{where}: t_s must be >= 0, got {t}")
+            if not 0 <= t <= MAX_DURATION_S:
+                raise ScenarioError(
+                    f"{where}: t_s must be 0..{MAX_DURATION_S:g} s (a day), got {t:g}"
+                )
             tables.append((t, i, kind, entry))
     for kind in ("keyframe", "step"):
         times = [t for t, _, k, _ in tables if k == kind]
@@ -303,8 +312,11 @@ def parse_scenario(text: str, name: str = "scenario", source: str = "<string>") 
     )
     if "duration_s" in doc:
         duration = _number(source, "duration_s", doc["duration_s"])
-        if duration <= 0:
-            raise ScenarioError(f"{source}: duration_s must be positive, got {duration}")
+        if not 0 < duration <= MAX_DURATION_S:
+            raise ScenarioError(
+                f"{source}: duration_s must be above 0 and at most {MAX_DURATION_S:g} s"
+                f" (a day), got {duration:g}"
+            )
     else:
         duration = max(last_t, 1.0 / rate)
     steps = tuple(t for t in timelines[0].jumps() if t < duration)

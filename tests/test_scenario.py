@@ -92,6 +92,8 @@ def test_step_times_and_frames() -> None:
         ("[[keyframe]]\nt_s = 1.0\ndistance_m = 1.0\ninterp = 'cubic'", "interp"),
         ("[[keyframe]]\nt_s = 2.0\nlux = 1.0\n[[keyframe]]\nt_s = 1.0\nlux = 2.0", "time order"),
         ("[[step]]\nt_s = 1.0", "names no field"),
+        ("duration_s = 1e308", r"duration_s must be above 0 and at most 86400 s"),
+        ("[[keyframe]]\nt_s = 1e300\nlux = 3.0", r"t_s must be 0\.\.86400 s"),
         ("this is not toml", "TOML"),
         ("keyframe = [1, 2]", r"\[\[keyframe\]\] #1: must be a table"),
         ('step = ["t_s"]', r"\[\[step\]\] #1: must be a table"),

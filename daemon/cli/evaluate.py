@@ -25,6 +25,11 @@ EXIT_CONFIG = EX_CONFIG  # a bad scenario name or file, like any bad flag (docs/
 EXIT_TARGETS_MISSED = 1
 MAX_SEED_RANGE = 10_000
 """The most seeds one ``--seed A-B`` names: 240,000 runs, days of CPU."""
+MAX_RUN_S = 600.0
+"""The longest scenario one run judges, seconds: a run holds every frame of every
+method in memory, about 135 KB a second of scenario (``/usr/bin/time -f %M lunad
+eval --scenario static --world paper --duration 120``: 53 MB), so 600 s is about
+120 MB in each process; an hour grew past 500 MB."""
 ROBUST_ORACLE_RATIO = 1.5
 """Within 1.5x of the oracle when the noise is scaled (x2 or x0.5): the filter's
 constants then describe another sensor."""
@@ -154,7 +159,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
         "--duration",
         type=positive_float,
         metavar="SECONDS",
-        help="cut (or hold) every scenario to this length",
+        help=f"cut (or hold) every scenario to this length (at most {MAX_RUN_S:g} s)",
     )
     p.add_argument("--format", choices=("table", "json"), default="table", help="output format")
     p.add_argument("--list", action="store_true", help="list the built-in scenarios and exit")
@@ -226,6 +231,9 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_CONFIG
     config = cfg.filter.to_filter_config()
     names = args.scenario or list(builtin_scenarios())
+    if args.duration is not None and args.duration > MAX_RUN_S:
+        log.error("--duration: at most %g s (a run holds all its frames in memory)", MAX_RUN_S)
+        return EXIT_CONFIG
     try:
         scenarios = [load_scenario(n) for n in names]
         if args.duration is not None:
@@ -233,6 +241,17 @@ def run(args: argparse.Namespace) -> int:
     except ScenarioError as exc:
         log.error("--scenario: %s", exc)
         return EXIT_CONFIG
+    for scenario in scenarios:
+        if scenario.duration_s > MAX_RUN_S:
+            log.error(
+                "--scenario %s: lasts %g s; a run holds all its frames in memory and lasts"
+                " at most %g s: judge its start with --duration %g",
+                scenario.name,
+                scenario.duration_s,
+                MAX_RUN_S,
+                MAX_RUN_S,
+            )
+            return EXIT_CONFIG
     worlds = WORLDS if args.world == "both" else (args.world,)
     seeds = tuple(dict.fromkeys(s for r in args.seed or (range(1),) for s in r))
     runs = len(scenarios) * len(worlds) * len(seeds)
