@@ -168,6 +168,11 @@ changed. A key removed from it is refused to connections that start this long la
 REFUSAL_LOG_INTERVAL_S = 1.0
 """A refused CURVE key is logged at most this often, seconds; refusals in between are
 counted in the next line, so a peer retrying without end cannot fill the journal."""
+PEER_REFUSAL_LOG_INTERVAL_S = 60.0
+"""Connections shut at once (past ``MAX_PEERS``, or from a flood's origin) are logged at
+most this often, seconds, with how many since the last such line: a subscriber turned
+away is otherwise told nothing, and its owner looks for the fault in its own key or
+group."""
 INBOUND_HWM = 8
 """``ZMQ_RCVHWM``, messages per peer: about what libzmq moves from a peer into its own
 unbounded queue each time it processes commands while the loop keeps up. An honest
@@ -503,6 +508,8 @@ class Publisher:
         self.refused_keys = 0
         self._refusals_unlogged = 0
         self._next_refusal_log_ns = 0
+        self._peers_refused_unlogged = [0, 0]  # past MAX_PEERS, penalized for a flood
+        self._next_peer_refusal_log_ns = 0
         self._allowlist: _Allowlist | None = None
         """The client keys admitted; None without CURVE (every peer is admitted)."""
         server_keys: tuple[bytes, bytes] | None = None
@@ -789,8 +796,33 @@ class Publisher:
                     if refuse:
                         self._cut(fd, _REFUSED)
                         self.refused_peers += 1
+                        self._peers_refused_unlogged[penalized] += 1
         else:
             self._more_queued()
+        if any(self._peers_refused_unlogged):
+            self._log_refused_peers()
+
+    def _log_refused_peers(self) -> None:
+        """Say, at most every ``PEER_REFUSAL_LOG_INTERVAL_S``, how many connections were
+        shut at once since the last such line, and why."""
+        now = monotonic_ns()
+        if now < self._next_peer_refusal_log_ns:
+            return
+        self._next_peer_refusal_log_ns = now + int(PEER_REFUSAL_LOG_INTERVAL_S * NS)
+        full, flood = self._peers_refused_unlogged
+        self._peers_refused_unlogged = [0, 0]
+        why = []
+        if full:
+            why.append(f"{full} past the {MAX_PEERS} it serves at once")
+        if flood:
+            why.append(f"{flood} from where a flood came, for {FLOOD_PENALTY_S:g} s")
+        log.warning(
+            "%s: shut %d new connection(s) at once since the last such line (%s); %d served",
+            self.endpoint,
+            full + flood,
+            "; ".join(why),
+            self.peers,
+        )
 
     def _answer_zap(self) -> None:
         """Admit each connection waiting in its handshake (ZAP, RFC 27), unless its

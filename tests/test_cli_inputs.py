@@ -255,3 +255,22 @@ def test_keys_into_a_file_says_it_is_not_a_directory(tmp_path: Path, helpers: An
     assert r.returncode == 1, r.stderr
     assert r.stderr == f"lunad keys: {f}: not a directory: give the folder the key pair goes in\n"
     assert f.read_text() == "mine\n"
+
+
+def test_record_says_once_that_its_device_is_absent(tmp_path: Path, helpers: Any) -> None:
+    """``lunad record`` on an absent port logged a warning on every retry, one every
+    2 s for ever; as ``serve`` does, it says so once, then once a minute."""
+    out = tmp_path / "absent.lunarec"
+    r = run_lunad(
+        helpers,
+        "record",
+        "--device",
+        str(tmp_path / "nothing"),
+        "--duration",
+        "6",
+        "--out",
+        str(out),
+    )
+    assert r.returncode == 0, r.stderr
+    said = [line for line in r.stderr.splitlines() if "cannot open" in line]
+    assert len(said) == 1 and "retrying every 2.0 s at most" in said[0], r.stderr

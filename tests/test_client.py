@@ -126,6 +126,37 @@ def test_watch_says_what_to_check_when_nothing_comes(tmp_path: Path) -> None:
     assert err.count("nothing from ipc://") == 1 and "group lunad" in err
 
 
+def test_watch_says_when_what_comes_does_not_decode(tmp_path: Path) -> None:
+    """A publisher whose messages are not lunad's contract (another version, or not
+    lunad): watch skipped them and said "nothing yet" and "0 readings, 0 lost", as if
+    nothing came. It says they came and did not decode, and counts them."""
+    ep = f"ipc://{tmp_path}/u.sock"
+    ctx = zmq.Context()
+    pub = ctx.socket(zmq.PUB)
+    pub.bind(ep)
+    stop = threading.Event()
+
+    def send() -> None:
+        while not stop.wait(0.05):
+            pub.send_multipart([topic("range", "front"), b'{"kind": "range", "seq": -1}'])
+
+    sender = threading.Thread(target=send)
+    sender.start()
+    try:
+        w = _watch(ep, "--duration", "7")
+        _, err = w.communicate(timeout=30)
+    finally:
+        stop.set()
+        sender.join()
+        pub.close(linger=0)
+        ctx.term()
+    assert w.returncode == 0
+    assert err.count("did not decode and were skipped") == 1 and "nothing from" not in err
+    summary = err.strip().splitlines()[-1]
+    assert summary.startswith("0 readings, 0 lost (seq gaps), ")
+    assert int(summary.split(", ")[2].split()[0]) >= 50, summary
+
+
 def test_gaps_duplicates_folding_restarts_and_bad_messages(tmp_path: Path) -> None:
     ep = f"ipc://{tmp_path}/c.sock"
     ctx = zmq.Context()

@@ -175,4 +175,4 @@ def test_the_hint_is_in_the_retry_log_line(tmp_path: Path) -> None:
     r = _run("record", "--device", device, "--out", str(out), "--duration", "0.3")
     assert r.returncode == 0, r.stderr
     warning = next(line for line in r.stderr.splitlines() if "cannot open" in line)
-    assert warning.endswith(f"{UART_HINT}; docs/raspberry-pi.md); retrying")
+    assert warning.endswith(f"{UART_HINT}; docs/raspberry-pi.md); retrying every 2.0 s at most")

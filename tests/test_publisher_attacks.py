@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import logging
 import os
 import select
 import signal
@@ -430,11 +431,16 @@ def test_distinct_topics_slowly_enough_never_to_be_behind(
     assert per_connection < 2 * publisher_module.FOREIGN_BYTES_MAX / 122
 
 
-def test_two_hundred_connections(tcp_endpoint: str) -> None:
+def test_two_hundred_connections(tcp_endpoint: str, caplog: pytest.LogCaptureFixture) -> None:
     """200 connections that complete the ZMTP handshake and stay: at most
     ``MAX_PEERS`` are served, the rest shut down as they come, and the honest
-    subscriber (connected first) keeps every message."""
+    subscriber (connected first) keeps every message. The log says so, once a
+    ``PEER_REFUSAL_LOG_INTERVAL_S``: a subscriber turned away is told nothing."""
+    caplog.set_level(logging.WARNING, logger="lunad.daemon.publisher")
     fig = run_attack(tcp_endpoint, "connections", "200")
+    said = [r.getMessage() for r in caplog.records if "at once since the last" in r.getMessage()]
+    assert said and f"past the {publisher_module.MAX_PEERS} it serves at once" in said[0]
+    assert len(said) <= 1 + ATTACK_S / publisher_module.PEER_REFUSAL_LOG_INTERVAL_S
     assert_honest_kept(fig, late_join=False)  # peer 201: it gets in once the attack ends
     cap = publisher_module.MAX_PEERS
     assert fig.peers_max <= cap

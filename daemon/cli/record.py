@@ -79,6 +79,7 @@ def run(args: argparse.Namespace) -> int:
         SourceLostError,
         SourceOpenError,
     )
+    from lunad.daemon.reconnect import RETRY_LOG_EVERY_S
     from lunad.daemon.sources.base import Source, open_source
     from lunad.daemon.sources.recording import Recorder
     from lunad.daemon.sources.serial import PortBusyError
@@ -102,6 +103,8 @@ def run(args: argparse.Namespace) -> int:
         signal.signal(sig, on_signal)
     deadline = None if args.duration is None else time.monotonic() + args.duration
     backoff = 0.1
+    failures = 0  # opens that failed in a row
+    said_at = 0.0  # when the last of them was logged (monotonic seconds)
     created = not os.path.lexists(args.out)  # an empty file of ours is removed on a busy port
     try:
         rec = Recorder(
@@ -126,12 +129,25 @@ def run(args: argparse.Namespace) -> int:
                 except PortBusyError as exc:  # its holder keeps it: waiting would record nothing
                     busy = exc
                     break
-                except SourceOpenError as exc:
-                    log.warning("%s; retrying", exc)
+                except SourceOpenError as exc:  # said once, then once a RETRY_LOG_EVERY_S
+                    failures += 1
+                    now = time.monotonic()
+                    if failures == 1:
+                        log.warning("%s; retrying every %.1f s at most", exc, BACKOFF_MAX_S)
+                        said_at = now
+                    elif now - said_at >= RETRY_LOG_EVERY_S:
+                        log.warning("still cannot open it after %d tries: %s", failures, exc)
+                        said_at = now
                     stop.wait(min(backoff, left or backoff))
                     backoff = min(backoff * 2, BACKOFF_MAX_S)
                     continue
-                log.info("recording %s to %s", src, args.out)
+                log.info(
+                    "recording %s to %s%s",
+                    src,
+                    args.out,
+                    f" after {failures} failed tries" if failures else "",
+                )
+                failures = 0
                 startup = (
                     commands.startup(cfg.sensor.frame_rate_hz, cfg.sensor.frame_format)
                     if cfg.sensor.configure

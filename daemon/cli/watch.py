@@ -70,7 +70,14 @@ NOTHING_YET = (
     "lunad watch: nothing from %s yet; is the daemon running and publishing there"
     " (--publish, [publish] endpoint), and for an ipc:// socket may you read it (group lunad)?"
 )
-NOTHING_YET_PLAIN = " Is it a CURVE endpoint (--curve-server-key and --curve-client-key)?"
+NOTHING_YET_PLAIN = (
+    " Is it a CURVE endpoint (--curve-server-key and --curve-client-key)? Does it serve"
+    " its 64 subscribers already (its log says 'shut ... connection(s) at once')?"
+)
+UNDECODED = (
+    "lunad watch: %d message(s) from %s did not decode and were skipped: they are not"
+    " lunad's message contract (docs/messages.md); is it lunad, and of this version?"
+)
 NOTHING_YET_CURVE = (
     " Is this client's public key in the daemon's curve_clients? It refuses a key it does"
     " not list without a word to the client (its log says 'CURVE: refused')."
@@ -247,11 +254,13 @@ def _subscribe(endpoint: str, sensor: str | None, curve: CurveKeys | None = None
 
 @dataclass(frozen=True, slots=True)
 class WatchResult:
-    """What a watch saw: readings received, readings lost (seq gaps), the last seq."""
+    """What a watch saw: readings received, readings lost (seq gaps), the last seq, and
+    messages that did not decode (``Subscriber.bad_messages``: skipped)."""
 
     readings: int
     lost: int
     last_seq: int | None
+    undecoded: int = 0
 
 
 def watch(
@@ -292,8 +301,11 @@ def watch(
                 if msg is None:
                     if not heard and time.monotonic() >= hint_at:
                         hint_at = math.inf
-                        more = NOTHING_YET_PLAIN if curve is None else NOTHING_YET_CURVE
-                        print(NOTHING_YET % endpoint + more, file=sys.stderr)
+                        if sub.bad_messages:
+                            print(UNDECODED % (sub.bad_messages, endpoint), file=sys.stderr)
+                        else:
+                            more = NOTHING_YET_PLAIN if curve is None else NOTHING_YET_CURVE
+                            print(NOTHING_YET % endpoint + more, file=sys.stderr)
                     continue
                 heard = True
                 if isinstance(msg, RangeMessage):
@@ -314,7 +326,7 @@ def watch(
                 out.flush()
         except KeyboardInterrupt:
             pass  # Ctrl-C is the usual stop: the summary still counts what came
-        return WatchResult(readings, sub.lost, sub.last_seq)
+        return WatchResult(readings, sub.lost, sub.last_seq, sub.bad_messages)
 
 
 @dataclass
@@ -329,7 +341,8 @@ class ScreenModel:
         history: the last ``HISTORY_READINGS`` filtered ranges, metres; None for a
             reading without one (a dropout).
         health: the latest health message, and ``health_at`` when it came.
-        readings: range messages received; lost: frames missed (``Subscriber.lost``).
+        readings: range messages received; lost: frames missed (``Subscriber.lost``);
+            undecoded: messages skipped, not lunad's contract (``Subscriber.bad_messages``).
         sensors: every sensor name seen, to notice a mixed stream without ``--sensor``.
     """
 
@@ -343,6 +356,7 @@ class ScreenModel:
     health_gaps: deque[float] = field(default_factory=lambda: deque(maxlen=HEALTH_GAPS_KEPT))
     readings: int = 0
     lost: int = 0
+    undecoded: int = 0
     sensors: set[str] = field(default_factory=set)
 
     def add(self, msg: RangeMessage | HealthMessage, now: float) -> None:
@@ -447,7 +461,8 @@ def render(
     rows.append(_row("history", scale))
     rows.append(_row("", sparkline(recent, glyphs)))
     rows.append("")
-    rows.append(f"{model.readings} readings, {model.lost} lost (seq gaps)   q quits")
+    undecoded = f", {model.undecoded} that did not decode" if model.undecoded else ""
+    rows.append(f"{model.readings} readings, {model.lost} lost (seq gaps){undecoded}   q quits")
     return [row[:limit] for row in rows]
 
 
@@ -539,7 +554,7 @@ def screen(
             raise TerminalError(f"--refresh: cannot drive this terminal: {exc}") from exc
         except KeyboardInterrupt:
             pass  # Ctrl-C is the usual stop; curses.wrapper restored the terminal
-        return WatchResult(model.readings, sub.lost, sub.last_seq)
+        return WatchResult(model.readings, sub.lost, sub.last_seq, sub.bad_messages)
 
 
 def _screen(
@@ -582,6 +597,7 @@ def _screen(
             drawn_at, news = now, False
         due = drawn_at + (REDRAW_MIN_GAP_S if news else REDRAW_EVERY_S)
         msg = sub.recv(timeout_s=max(0.0, min(due, deadline) - time.monotonic()))
+        model.undecoded = sub.bad_messages
         if msg is not None:
             model.add(msg, time.monotonic())
             model.lost = sub.lost
@@ -636,5 +652,6 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_USAGE
     except KeyboardInterrupt:
         return 0
-    print(f"{result.readings} readings, {result.lost} lost (seq gaps)", file=sys.stderr)
+    undecoded = f", {result.undecoded} that did not decode" if result.undecoded else ""
+    print(f"{result.readings} readings, {result.lost} lost (seq gaps){undecoded}", file=sys.stderr)
     return 0
