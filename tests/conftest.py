@@ -223,11 +223,32 @@ def health_state(state: str) -> Callable[[Message], bool]:
     return lambda m: isinstance(m, HealthMessage) and m.state == state
 
 
+def recording_refused(device: str, endpoint: str, path: Path) -> list[str]:
+    """Run ``lunad record --out path`` and ``lunad serve --record path`` on ``device``,
+    assert each exits 78 with one ``lunad ...`` line, no traceback and ``path`` left
+    byte for byte, and return the two lines."""
+    before = path.read_bytes()
+    commands = (
+        ["record", "--device", device, "--out", str(path), "--duration", "5"],
+        ["serve", "--device", device, "--publish", endpoint, "--record", str(path)],
+    )
+    said = []
+    for args in commands:
+        r = subprocess.run([*LUNAD, *args], capture_output=True, text=True, timeout=30)
+        assert r.returncode == 78, r.stderr
+        errors = [line for line in r.stderr.splitlines() if line.startswith("lunad ")]
+        assert len(errors) == 1 and "Traceback" not in r.stderr, r.stderr
+        assert path.read_bytes() == before
+        said.append(errors[0])
+    return said
+
+
 @pytest.fixture
 def helpers() -> Any:
     """Small helpers for tests (conftest modules are not importable by name)."""
 
     class H:
+        recording_refused = staticmethod(recording_refused)
         wait_for = staticmethod(wait_for)
         is_range = staticmethod(is_range)
         health_state = staticmethod(health_state)

@@ -64,6 +64,17 @@ def test_hang_up_is_source_lost(line: tuple[int, SerialSource]) -> None:
             src.read(2.0)
 
 
+def read_sizes(src: SerialSource, total: int) -> list[int]:
+    """The size of each chunk ``src`` reads until ``total`` bytes came (5 s at most)."""
+    sizes: list[int] = []
+    deadline = time.monotonic() + 5.0
+    while sum(sizes) < total and time.monotonic() < deadline:
+        chunk = src.read(0.5)
+        if chunk:
+            sizes.append(len(chunk[0]))
+    return sizes
+
+
 def test_a_read_of_a_url_port_takes_at_most_one_read_of_a_tty() -> None:
     """pyserial's path (URLs) read all that waited: after a stall an ``rfc2217://``
     bridge could hand over 64 KiB in one chunk, one record of a recording, which a power
@@ -80,12 +91,7 @@ def test_a_read_of_a_url_port_takes_at_most_one_read_of_a_tty() -> None:
     try:
         os.write(master, sent)
         time.sleep(0.2)
-        sizes: list[int] = []
-        deadline = time.monotonic() + 5.0
-        while sum(sizes) < len(sent) and time.monotonic() < deadline:
-            chunk = src.read(0.5)
-            if chunk:
-                sizes.append(len(chunk[0]))
+        sizes = read_sizes(src, len(sent))
     finally:
         src.close()
         os.close(master)
@@ -109,12 +115,7 @@ def test_a_socket_port_reads_what_came_not_two_bytes_at_a_time() -> None:
         try:
             conn, _ = server.accept()
             conn.sendall(sent)
-            sizes: list[int] = []
-            deadline = time.monotonic() + 5.0
-            while sum(sizes) < len(sent) and time.monotonic() < deadline:
-                chunk = src.read(0.5)
-                if chunk:
-                    sizes.append(len(chunk[0]))
+            sizes = read_sizes(src, len(sent))
             conn.close()
         finally:
             src.close()
