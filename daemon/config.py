@@ -559,6 +559,17 @@ class FilterSection(_Section):
 
     model_config = ConfigDict(extra="allow", frozen=True)
 
+    def sets(self, key: str) -> bool:
+        """Whether the file sets ``key`` (a ``FilterConfig`` name), whatever its value:
+        a sigma0 ``lunad calibrate`` measured may equal the default's 0.004 m."""
+        return key in (self.model_extra or {})
+
+    @property
+    def sets_noise_model(self) -> bool:
+        """Whether the file sets ``sigma0_m`` or ``k_m_per_lux`` (``lunad calibrate
+        --write`` writes them): the noise model is then this sensor's."""
+        return self.sets("sigma0_m") or self.sets("k_m_per_lux")
+
     def to_filter_config(self) -> FilterConfig:
         """The filter's own settings, checked against its field names and types."""
         known = {f.name: f for f in dataclasses.fields(FilterConfig)}

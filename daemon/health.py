@@ -19,7 +19,6 @@ class State(StrEnum):
     STOPPED = "stopped"  # the daemon's last message: shutting down, or a replay ended
 
 
-_DEFAULT_NOISE = (FilterConfig().sigma0_m, FilterConfig().k_m_per_lux)
 """sigma0 and k of the datasheet fit: the noise model is ``default`` while they are."""
 
 
@@ -46,11 +45,19 @@ class Health:
         sensor: the sensor name.
         t_mono_ns: when the daemon started (monotonic nanoseconds).
         run: the daemon's run identity (docs/messages.md ``run``).
-        filter_config: the filter settings in force: the range gate and whether the
-            noise model is the datasheet default.
+        filter_config: the filter settings in force, for the range gate.
+        noise_configured: the config sets the noise model (sigma0 or k: ``lunad
+            calibrate``), or the defaults are in force (``noise_model``).
     """
 
-    def __init__(self, sensor: str, t_mono_ns: int, run: str, filter_config: FilterConfig) -> None:
+    def __init__(
+        self,
+        sensor: str,
+        t_mono_ns: int,
+        run: str,
+        filter_config: FilterConfig,
+        noise_configured: bool = False,
+    ) -> None:
         self.sensor = sensor
         self.run = run
         self.state = State.RECONNECTING
@@ -58,6 +65,7 @@ class Health:
         self.firmware: str | None = None
         self.serial: str | None = None
         self.filter_config = filter_config
+        self.noise_configured = noise_configured
         self._t_start = t_mono_ns
         self._t_mark = t_mono_ns
         self._frames_mark = 0
@@ -85,7 +93,6 @@ class Health:
         dropouts = self.dropouts - self._dropouts_mark
         self._t_mark, self._frames_mark, self._dropouts_mark = t_mono_ns, self.frames, self.dropouts
         fc = self.filter_config
-        configured = (fc.sigma0_m, fc.k_m_per_lux) != _DEFAULT_NOISE
         return HealthMessage(
             sensor=self.sensor,
             run=self.run,
@@ -105,5 +112,5 @@ class Health:
             serial=self.serial,
             min_range_m=fc.min_range_m,
             max_range_m=fc.max_range_m,
-            noise_model="configured" if configured else "default",
+            noise_model="configured" if self.noise_configured else "default",
         )

@@ -113,6 +113,7 @@ class Reloading:
             self.recorder = recorder
         self._apply(new)
         self.health.filter_config = new.filter.to_filter_config()
+        self.health.noise_configured = new.filter.sets_noise_model
         self.health.sensor = new.sensor.name
         same_port = new.source.model_copy(update={"record": old.source.record}) == old.source
         if not same_port or new.sensor != old.sensor:  # a new recording keeps the port open

@@ -206,7 +206,11 @@ class Daemon(Reconnecting, Reloading):
         publisher.start_waker(self._wake_loop)
         now = time.monotonic_ns()
         health = self.health = Health(
-            self.cfg.sensor.name, now, self.run_id, self.cfg.filter.to_filter_config()
+            self.cfg.sensor.name,
+            now,
+            self.run_id,
+            self.cfg.filter.to_filter_config(),
+            self.cfg.filter.sets_noise_model,
         )
         self._next_health = now
         self._last_bytes = now

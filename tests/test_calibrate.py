@@ -280,6 +280,31 @@ def test_sigma0_in_the_dark_then_k_under_light_on_the_virtual_sensor(
     assert after[8].startswith("k_m_per_lux = ") and after[9:] == before[8:]
 
 
+@pytest.mark.parametrize("sigma0_line", ["sigma0_m = 0.004\n", ""], ids=["set", "not set"])
+def test_fit_k_warns_only_where_no_sigma0_is_set(
+    device: Callable[..., PtyDevice], helpers: Any, tmp_path: Path, sigma0_line: str
+) -> None:
+    """A dark run that measured sigma0 as 0.004 m (it is written to 3 figures) was taken
+    for no run at all, as the test was equality with the default: the --fit-k step
+    then warned that sigma0 had not been measured. What counts is that the file sets
+    it."""
+    cfg = tmp_path / "front.toml"
+    cfg.write_text(f"[filter]\namp_ref = 2000.0\n{sigma0_line}")
+    lamp_truth = Truth(distance_m=3.0, reflectivity=0.3, angle_deg=0.0, lux=30_000.0)
+    lamp = device(rate_hz=250, output_enabled=False, model=RealisticSensor(), truth=lamp_truth)
+    r = subprocess.run(
+        calibrate_argv(
+            helpers, lamp, lamp_truth, "--config", str(cfg), "--lux", "30000", "--fit-k"
+        ),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode == 0, r.stderr
+    warned = "sigma0_m is the datasheet's 0.004, not measured" in r.stderr
+    assert warned == (not sigma0_line), r.stderr
+
+
 def test_a_noisier_sensor_reads_a_larger_sigma0(
     device: Callable[..., PtyDevice], helpers: Any
 ) -> None:

@@ -353,11 +353,12 @@ def test_health_gives_the_range_gate_and_noise_model_in_force(
     tmp_path: Path,
 ) -> None:
     """A ROS bridge takes min/max range from health: they are the config's, not the
-    datasheet's; a measured sigma0 makes the noise model 'configured'."""
+    datasheet's; a sigma0 the config sets makes the noise model 'configured', even one
+    that measured the default's 0.004 m (``lunad calibrate`` writes 3 figures)."""
     dev = device(rate_hz=100, output_enabled=False)
     cfg = tmp_path / "front.toml"
     cfg.write_text(
-        "[filter]\nmin_range_m = 0.3\nmax_range_m = 6.0\nsigma0_m = 0.0045\n", encoding="utf-8"
+        "[filter]\nmin_range_m = 0.3\nmax_range_m = 6.0\nsigma0_m = 0.004\n", encoding="utf-8"
     )
     start_daemon("--config", str(cfg), "--device", dev.path, "--publish", endpoint)
     h = helpers.wait_for(

@@ -516,7 +516,9 @@ def add_parser(sub: Any) -> None:
     p.set_defaults(func=run)
 
 
-def report(cal: Calibration, args: argparse.Namespace, cfg: FilterConfig) -> list[str]:
+def report(
+    cal: Calibration, args: argparse.Namespace, cfg: FilterConfig, sigma0_set: bool = False
+) -> list[str]:
     """The lines ``run`` prints on stdout for ``cal``: each figure with its uncertainty."""
     sp = cal.spread
     out = [
@@ -556,7 +558,7 @@ def report(cal: Calibration, args: argparse.Namespace, cfg: FilterConfig) -> lis
         )
     if cal.not_measured is not None:
         out.append(cal.not_measured)
-    if cal.sigma0 is None and cfg.sigma0_m == SIGMA0_DEFAULT_M:
+    if cal.sigma0 is None and not sigma0_set:
         low, high = DATASHEET_SIGMA0_RANGE_MM
         out.append(
             f"sigma0_m stays {SIGMA0_DEFAULT_M:g}, the datasheet fit, not measured on this "
@@ -600,7 +602,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"lunad calibrate: {exc}", file=sys.stderr)
         return EX_CONFIG
     filter_cfg = cfg.filter.to_filter_config()
-    if args.fit_k and filter_cfg.sigma0_m == SIGMA0_DEFAULT_M:
+    sigma0_set = cfg.filter.sets("sigma0_m")  # by an earlier run, or by hand
+    if args.fit_k and not sigma0_set:
         print(
             f"warning: sigma0_m is the datasheet's {SIGMA0_DEFAULT_M:g}, not measured on this "
             "sensor, and k inherits its error: run `lunad calibrate --lux 0 --write` in "
@@ -655,7 +658,7 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"lunad calibrate: {exc}", file=sys.stderr)
         return 1
-    print("\n".join(report(cal, args, filter_cfg)))
+    print("\n".join(report(cal, args, filter_cfg, sigma0_set)))
     off = abs(cal.median_distance_m - args.distance)
     if off > DISTANCE_TOLERANCE * args.distance + DISTANCE_SLACK_M:
         written = " Nothing written." if args.write else ""
