@@ -72,7 +72,7 @@ class PtyDevice:
 
     Args:
         truth: the world the sensor sees: fixed, or a function of seconds since start
-            (a scenario's ``truth_at``). Default: a white target at 2 m, indoors.
+            (a scenario's ``truth_at``). Default: a white target at 2 m, in the dark.
         model: draws readings; the paper's equations 1-3 by default.
         rate_hz: initial frame rate (0 = trigger mode).
         link: the stable symlink to the pty slave; ``default_link()`` if None.

@@ -120,6 +120,16 @@ def _setting(text: str) -> tuple[str, Any]:
         ) from None
 
 
+def _run_seconds(text: str) -> float:
+    """``--duration``: a positive number of seconds, at most ``MAX_RUN_S``."""
+    value = positive_float(text)
+    if value > MAX_RUN_S:
+        raise argparse.ArgumentTypeError(
+            f"at most {MAX_RUN_S:g} s (a run holds all its frames in memory), got {text!r}"
+        )
+    return value
+
+
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     """Add the ``eval`` sub-command to ``subparsers`` (from ``add_subparsers()``)."""
     p: argparse.ArgumentParser = subparsers.add_parser(
@@ -157,7 +167,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--duration",
-        type=positive_float,
+        type=_run_seconds,
         metavar="SECONDS",
         help=f"cut (or hold) every scenario to this length (at most {MAX_RUN_S:g} s)",
     )
@@ -231,9 +241,6 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_CONFIG
     config = cfg.filter.to_filter_config()
     names = args.scenario or list(builtin_scenarios())
-    if args.duration is not None and args.duration > MAX_RUN_S:
-        log.error("--duration: at most %g s (a run holds all its frames in memory)", MAX_RUN_S)
-        return EXIT_CONFIG
     try:
         scenarios = [load_scenario(n) for n in names]
         if args.duration is not None:

@@ -29,7 +29,7 @@ mix them (an edge: --truth-out still logs the surface at the beam's centre).
 
 EPILOG = """\
 examples:
-  lunad sim                                    # white target at 2 m, indoors, 100 Hz
+  lunad sim                                    # white target at 2 m, dark, 100 Hz
   lunad sim --rate 250 --lux 30000 --reflectivity 0.3 --angle 40
   lunad sim --garbage-rate 0.05 --corrupt-rate 0.02   # a dirty line
   lunad sim --link /tmp/tfluna --duration 10 --truth-out truth.csv
@@ -37,8 +37,8 @@ examples:
   lunad sim --scenario my_test.toml --loop              # your own scenario file, repeated
   lunad sim --profile paper --lux 2000                  # the paper's equations literally
 
-built-in scenarios: static, approach, obstacles, sun_ramp, incidence_sweep, beyond_range
-(`lunad eval --list` describes them; docs/filter.md shows the file format).
+built-in scenarios: `lunad eval --list` names and describes the 12 (static, approach,
+obstacles, sun_ramp, room_sweep, ...); sim/scenario.py shows the file format.
 """
 
 
@@ -52,7 +52,10 @@ def add_parser(sub: Any) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument(
-        "--link", metavar="PATH", help="symlink to the pty (default under $XDG_RUNTIME_DIR)"
+        "--link",
+        metavar="PATH",
+        help="symlink to the pty (default $XDG_RUNTIME_DIR/lunad/tfluna-sim, or"
+        " /tmp/lunad-UID/tfluna-sim without it)",
     )
     p.add_argument(
         "--rate", type=int, metavar="HZ", help="frame rate (default 100, or the scenario's)"
