@@ -806,11 +806,12 @@ class Publisher:
         """Say, at most every ``PEER_REFUSAL_LOG_INTERVAL_S``, how many connections were
         shut at once since the last such line, and why."""
         now = monotonic_ns()
-        if now < self._next_peer_refusal_log_ns:
-            return
-        self._next_peer_refusal_log_ns = now + int(PEER_REFUSAL_LOG_INTERVAL_S * NS)
-        full, flood = self._peers_refused_unlogged
-        self._peers_refused_unlogged = [0, 0]
+        with self._peers_lock:  # the loop and the waker both read the monitor
+            if now < self._next_peer_refusal_log_ns:
+                return
+            self._next_peer_refusal_log_ns = now + int(PEER_REFUSAL_LOG_INTERVAL_S * NS)
+            full, flood = self._peers_refused_unlogged
+            self._peers_refused_unlogged = [0, 0]
         why = []
         if full:
             why.append(f"{full} past the {MAX_PEERS} it serves at once")
