@@ -274,6 +274,16 @@ class SourceSection(_Section):
         return v
 
     @property
+    def description(self) -> str:
+        """The source in the words the log, health and a recording's header use:
+        ``serial /dev/ttyAMA0``, ``i2c bus 1 address 0x10``, ``replay field.lunarec``."""
+        if self.kind == "serial":
+            return f"serial {self.device}"
+        if self.kind == "i2c":
+            return f"i2c bus {self.bus} address {self.address:#04x}"
+        return f"replay {self.path}"
+
+    @property
     def timed_by_its_frames(self) -> bool:
         """Whether the frame clock times frames by the rate they come at (a serial
         sensor, and a replay, whose recorded read times are the live run's), not the

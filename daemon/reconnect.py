@@ -174,9 +174,4 @@ class Reconnecting:
         self._unsent = None
 
     def _source_desc(self, cfg: Config | None = None) -> str:
-        s = (cfg or self.cfg).source
-        if s.kind == "serial":
-            return f"serial {s.device}"
-        if s.kind == "i2c":
-            return f"i2c bus {s.bus} address {s.address:#04x}"
-        return f"replay {s.path}"
+        return (cfg or self.cfg).source.description

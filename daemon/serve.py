@@ -297,6 +297,10 @@ class Daemon(Reconnecting, Reloading):
                 continue
             self._after_read(got)
 
+        if (unsent := self._unsent) is not None:  # frames folded since the last message
+            self._unsent = None  # (--publish-hz) at the end of a replay or a stop: sent
+            frame, raw_m, est, t_read = unsent
+            self._send_range(frame, raw_m, est, t_read, t_read + self._unix_offset_ns)
         self._drop_source()
         self.close_recorder()
         health.state = State.STOPPED  # the last health message: subscribers know it ended

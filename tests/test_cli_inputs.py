@@ -274,3 +274,41 @@ def test_record_says_once_that_its_device_is_absent(tmp_path: Path, helpers: Any
     assert r.returncode == 0, r.stderr
     said = [line for line in r.stderr.splitlines() if "cannot open" in line]
     assert len(said) == 1 and "retrying every 2.0 s at most" in said[0], r.stderr
+
+
+@pytest.mark.parametrize("sig", [signal.SIGHUP, signal.SIGTERM, signal.SIGINT], ids=str)
+def test_sim_removes_its_link_on_a_hangup_as_on_a_stop(
+    tmp_path: Path, helpers: Any, sig: signal.Signals
+) -> None:
+    """Killed by SIGHUP (its terminal closed), the sim left its link to a pty number the
+    next pty takes: a daemon opening the link read another sim. It stops as on SIGTERM:
+    the link goes, the summary is printed, exit 0."""
+    link = tmp_path / "tfluna"
+    p = subprocess.Popen(
+        [*helpers.lunad, "sim", "--link", str(link)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert p.stdout is not None
+        assert "virtual TF-Luna on" in p.stdout.readline()  # up, its link made
+        assert link.is_symlink()
+        p.send_signal(sig)
+        out, err = p.communicate(timeout=30)
+    finally:
+        p.kill()
+    assert p.returncode == 0, err
+    assert "good frames" in out and not os.path.lexists(link)
+
+
+def test_record_over_i2c_names_the_bus_in_its_header(tmp_path: Path, helpers: Any) -> None:
+    """``lunad record --bus`` wrote "i2c /dev/serial0" into the header, the serial
+    default; it names the bus and address, as ``serve --record`` does."""
+    from lunad.daemon.sources.recording import Replay
+
+    out = tmp_path / "i2c.lunarec"
+    r = run_lunad(helpers, "record", "--bus", "sim", "--duration", "1", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    with Replay(out) as rep:
+        assert rep.header.source_desc == "i2c bus sim address 0x10"

@@ -120,10 +120,11 @@ def test_watch_prints_its_summary_on_ctrl_c_and_keeps_its_duration(tmp_path: Pat
 def test_watch_says_what_to_check_when_nothing_comes(tmp_path: Path) -> None:
     """No daemon on the endpoint (or a socket it may not read): ZeroMQ is silent about
     it, so watch says so itself after a few seconds, once, and keeps waiting."""
-    w = _watch(f"ipc://{tmp_path}/nobody.sock", "--duration", "7")
+    w = _watch(f"ipc://{tmp_path}/nobody.sock", "--duration", "7", "--sensor", "Front")
     _, err = w.communicate(timeout=30)
     assert w.returncode == 0
     assert err.count("nothing from ipc://") == 1 and "group lunad" in err
+    assert "Does the daemon call its sensor 'Front'" in err  # a name that is not the one
 
 
 def test_watch_says_when_what_comes_does_not_decode(tmp_path: Path) -> None:

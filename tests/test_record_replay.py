@@ -17,7 +17,7 @@ import pytest
 
 from lunad.daemon.sources.recording import Replay
 from lunad.protocol.client import Subscriber
-from lunad.protocol.messages import RangeMessage
+from lunad.protocol.messages import HealthMessage, RangeMessage
 from lunad.sim.physics import Truth
 from lunad.sim.pty_device import PtyDevice
 from lunad.sim.virtual_sensor import SERIAL_NUMBER
@@ -29,6 +29,50 @@ def ranges_until_quiet(sub: Subscriber, quiet_s: float = 1.0) -> list[RangeMessa
         if isinstance(m, RangeMessage):
             out.append(m)
     return out
+
+
+def until_stopped(
+    endpoint: str, timeout_s: float = 20.0
+) -> tuple[list[RangeMessage], HealthMessage | None]:
+    """Every range message from ``endpoint`` until a ``stopped`` health message (or
+    ``timeout_s``), and the last health message."""
+    ranges: list[RangeMessage] = []
+    last: HealthMessage | None = None
+    with Subscriber(endpoint) as sub:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline and (last is None or last.state != "stopped"):
+            msg = sub.recv(timeout_s=1.0)
+            if isinstance(msg, RangeMessage):
+                ranges.append(msg)
+            elif isinstance(msg, HealthMessage):
+                last = msg
+    return ranges, last
+
+
+def test_a_replay_with_publish_hz_sends_its_last_frames(
+    start_daemon: Any, endpoint: str, tmp_path: Path
+) -> None:
+    """With ``--publish-hz``, the frames folded since the last message at the end of a
+    replay were never sent (the last 17 of 493 at 10 Hz; at 0.5 Hz only the first
+    frame's message went out) while health said every frame was published. The last
+    estimate goes out before ``stopped``, and the messages' ``frames`` add up."""
+    from lunad.daemon.sources.base import Chunk
+    from lunad.daemon.sources.recording import Recorder
+    from lunad.protocol.frame import encode_frame
+
+    rec = tmp_path / "folded.lunarec"
+    five = b"".join(encode_frame(150, 3000, 2368) for _ in range(5))
+    with Recorder(rec, source_desc="test", frame_rate_hz=250) as r:
+        for k in range(61):  # 305 frames, 1.22 s
+            r(Chunk(five, 10**12 + (k + 1) * 20_000_000))
+    for hz in ("10", "0.5"):
+        d = start_daemon(
+            "--replay", str(rec), "--speed", "max", "--publish-hz", hz, "--publish", endpoint
+        )
+        ranges, last = until_stopped(endpoint)
+        assert last is not None and last.state == "stopped", d.log
+        assert ranges[-1].seq == 304 and sum(m.frames for m in ranges) == 305, (hz, d.log)
+        assert d.proc.wait(timeout=15) == 0
 
 
 def comparable(msgs: list[RangeMessage]) -> list[dict[str, Any]]:
@@ -247,7 +291,6 @@ def test_replay_keeps_sending_health(start_daemon: Any, endpoint: str, tmp_path:
     from lunad.daemon.sources.base import Chunk
     from lunad.daemon.sources.recording import Recorder
     from lunad.protocol.frame import encode_frame
-    from lunad.protocol.messages import HealthMessage
 
     rec = tmp_path / "slow.lunarec"
     with Recorder(rec, source_desc="test") as r:
@@ -286,7 +329,6 @@ def test_a_replay_times_frames_by_the_rate_they_came_at(
     from lunad.daemon.sources.base import Chunk
     from lunad.daemon.sources.recording import Recorder
     from lunad.protocol.frame import encode_frame
-    from lunad.protocol.messages import HealthMessage
 
     rec = tmp_path / "deaf.lunarec"
     ten = b"".join(encode_frame(200, 5000, 2368) for _ in range(10))
@@ -294,16 +336,7 @@ def test_a_replay_times_frames_by_the_rate_they_came_at(
         for k in range(60):  # 6 s
             r(Chunk(ten, 10**12 + (k + 1) * 100_000_000))
     d = start_daemon("--replay", str(rec), "--speed", "max", "--publish", endpoint)
-    ranges: list[RangeMessage] = []
-    last: HealthMessage | None = None
-    with Subscriber(endpoint) as sub:
-        deadline = time.monotonic() + 20.0
-        while time.monotonic() < deadline and (last is None or last.state != "stopped"):
-            msg = sub.recv(timeout_s=1.0)
-            if isinstance(msg, RangeMessage):
-                ranges.append(msg)
-            elif isinstance(msg, HealthMessage):
-                last = msg
+    ranges, last = until_stopped(endpoint)
     assert last is not None and last.state == "stopped", d.log
     assert last.frame_rate_hz == 100.0, d.log
     late = [m.status for m in ranges if m.seq >= 300]  # the last 3 s

@@ -109,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         rec = Recorder(
             args.out,
-            source_desc=f"{cfg.source.kind} {cfg.source.device}",
+            source_desc=cfg.source.description,
             frame_rate_hz=cfg.sensor.frame_rate_hz,
         )
     except (LunadError, OSError, ValueError) as exc:

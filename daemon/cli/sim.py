@@ -188,7 +188,10 @@ def run(args: argparse.Namespace) -> int:
         )
         return EX_CONFIG
     done = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
+    # SIGHUP too (its terminal closed, an SSH session ended): killed by it, the sim left
+    # its link to a pty number the next pty takes, and a daemon opening the link then
+    # read another program's terminal, or another sim.
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, lambda *_: done.set())
     try:
         if out is not None:

@@ -74,6 +74,9 @@ NOTHING_YET_PLAIN = (
     " Is it a CURVE endpoint (--curve-server-key and --curve-client-key)? Does it serve"
     " its 64 subscribers already (its log says 'shut ... connection(s) at once')?"
 )
+NOTHING_YET_SENSOR = (
+    " Does the daemon call its sensor %r ([sensor] name, --name)? --sensor takes the exact name."
+)
 UNDECODED = (
     "lunad watch: %d message(s) from %s did not decode and were skipped: they are not"
     " lunad's message contract (docs/messages.md); is it lunad, and of this version?"
@@ -305,6 +308,8 @@ def watch(
                             print(UNDECODED % (sub.bad_messages, endpoint), file=sys.stderr)
                         else:
                             more = NOTHING_YET_PLAIN if curve is None else NOTHING_YET_CURVE
+                            if sensor is not None:
+                                more += NOTHING_YET_SENSOR % sensor
                             print(NOTHING_YET % endpoint + more, file=sys.stderr)
                     continue
                 heard = True
