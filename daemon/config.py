@@ -217,6 +217,13 @@ def _serial_url_problem(url: str) -> str | None:
     return None
 
 
+SPEED_MIN = 0.01
+"""The slowest replay, times real time: a frame of a 250 Hz recording every 0.4 s. At
+1e-9 (a typo) a replay sends nothing for years and only says its sensor is silent."""
+SPEED_MAX = 1000.0
+"""The fastest paced replay, times real time; ``max`` is as fast as it can."""
+
+
 class SourceSection(_Section):
     """[source]: where the bytes come from.
 
@@ -269,8 +276,8 @@ class SourceSection(_Section):
     @field_validator("speed")
     @classmethod
     def _speed(cls, v: float | None) -> float | None:
-        if v is not None and not 0 < v <= 1000:
-            raise ValueError("must be a factor in (0, 1000] or max")
+        if v is not None and not SPEED_MIN <= v <= SPEED_MAX:
+            raise ValueError(f"must be a factor from {SPEED_MIN:g} to {SPEED_MAX:g}, or max")
         return v
 
     @property

@@ -87,6 +87,7 @@ def test_file_and_flags(tmp_path: Path) -> None:
         ("", {"source.device": "alt:///dev/null?class=Nope"}, "unknown class: 'Nope'"),
         ("", {"source.device": "spy://socket://"}, "URL does not parse: expected socket://"),
         ("[filter]\namp_min = 70000\n", {}, "amp_min must be at most 32768 (an amp above"),
+        ("", {"source.speed": "1e-9"}, "source.speed (--speed): must be a factor from 0.01"),
         ("[filter]\nstep_confirm = 1000000000\n", {}, "step_confirm must be at most 100000"),
         ("[filter]\nnoise_slow_frames = 99999999999\n", {}, "noise_slow_frames must be at most"),
         ("[source]\naddress = 0x99\n", {}, "from 0x08 to 0x77 (M05 p.13), got 0x99"),

@@ -52,7 +52,7 @@ def add_parser(sub: Any) -> None:
     p.usage_exit_code = 78
     add_source_args(p)
     p.add_argument("--replay", metavar="FILE", help="replay a recording instead of a sensor")
-    p.add_argument("--speed", help="replay speed factor, or 'max' (default 1)")
+    p.add_argument("--speed", help="replay speed factor, 0.01 to 1000, or 'max' (default 1)")
     p.add_argument("--record", metavar="FILE", help="also record every byte read to FILE")
     p.add_argument("--publish", metavar="ENDPOINT", help="ZeroMQ endpoint to bind")
     p.add_argument("--name", help="sensor name used in topics (default tfluna)")
