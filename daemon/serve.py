@@ -297,10 +297,8 @@ class Daemon(Reconnecting, Reloading):
                 continue
             self._after_read(got)
 
-        if (unsent := self._unsent) is not None:  # frames folded since the last message
-            self._unsent = None  # (--publish-hz) at the end of a replay or a stop: sent
-            frame, raw_m, est, t_read = unsent
-            self._send_range(frame, raw_m, est, t_read, t_read + self._unix_offset_ns)
+        if self._unsent is not None:  # frames folded since the last message (--publish-hz)
+            self._send_unsent()  # at the end of a replay or a stop: sent
         self._drop_source()
         self.close_recorder()
         health.state = State.STOPPED  # the last health message: subscribers know it ended
@@ -487,16 +485,13 @@ class Daemon(Reconnecting, Reloading):
                 if n:
                     retimed = clock_feed(t_mono, n)
                 due = t_mono >= self._next_publish
-            unsent = self._unsent
-            if due and unsent is not None:
-                self._unsent = None
-                frame, raw_m, est, t_read = unsent
+            if due and self._unsent is not None:
+                t_read = self._send_unsent()
                 # a period from this message, less half a frame of jitter; a timer wakes
                 # for the next one a whole period on, so that its read is due
                 self._next_publish = t_read + period - spacing // 2
                 if ticking:
                     self._tick_at = t_read + period
-                self._send_range(frame, raw_m, est, t_read, t_read + self._unix_offset_ns)
             if retimed:
                 self._retime()
                 break
@@ -565,6 +560,16 @@ class Daemon(Reconnecting, Reloading):
         if est.status is _DROPOUT:
             health.dropouts += 1
         return est
+
+    def _send_unsent(self) -> int:
+        """Publish the estimate ``--publish-hz`` folded since the last message (the last
+        frame of the reads since, ``_unsent``); returns its read time, monotonic ns."""
+        unsent = self._unsent
+        assert unsent is not None
+        self._unsent = None
+        frame, raw_m, est, t_read = unsent
+        self._send_range(frame, raw_m, est, t_read, t_read + self._unix_offset_ns)
+        return t_read
 
     def _send_range(
         self, frame: Frame, raw_m: float | None, est: Estimate, t_mono_ns: int, t_unix_ns: int

@@ -4,9 +4,11 @@ hang-ups."""
 from __future__ import annotations
 
 import os
+import socket
 import termios
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 
 import pytest
 
@@ -64,6 +66,21 @@ def test_hang_up_is_source_lost(line: tuple[int, SerialSource]) -> None:
             src.read(2.0)
 
 
+@contextmanager
+def socket_port() -> Iterator[tuple[SerialSource, socket.socket, int]]:
+    """A ``socket://`` source on a loopback server: the source, the server's side of
+    the connection and its port; the source is closed after."""
+    with socket.create_server(("127.0.0.1", 0)) as server:
+        port = server.getsockname()[1]
+        src = SerialSource(f"socket://127.0.0.1:{port}")
+        try:
+            conn, _ = server.accept()
+            with conn:
+                yield src, conn, port
+        finally:
+            src.close()
+
+
 def read_sizes(src: SerialSource, total: int) -> list[int]:
     """The size of each chunk ``src`` reads until ``total`` bytes came (5 s at most)."""
     sizes: list[int] = []
@@ -104,21 +121,13 @@ def test_a_socket_port_reads_what_came_not_two_bytes_at_a_time() -> None:
     """pyserial's ``socket://`` says 1 byte waits whenever any do, so each read took 2
     bytes: 5 reads a frame, and in a recording 5 records of 16 bytes' overhead each.
     A read takes what came, up to ``READ_MAX_BYTES``."""
-    import socket
-
     from lunad.daemon.sources.serial import READ_MAX_BYTES
 
     sent = FRAME * 1000
-    with socket.create_server(("127.0.0.1", 0)) as server:
-        port = server.getsockname()[1]
-        src = SerialSource(f"socket://127.0.0.1:{port}")
-        try:
-            conn, _ = server.accept()
-            conn.sendall(sent)
-            sizes = read_sizes(src, len(sent))
-            conn.close()
-        finally:
-            src.close()
+    with socket_port() as (src, conn, _port):
+        conn.sendall(sent)
+        sizes = read_sizes(src, len(sent))
+        conn.close()
     assert sum(sizes) == len(sent)
     assert len(sizes) < len(sent) // 100 and max(sizes) <= READ_MAX_BYTES, sizes[:20]
 
@@ -126,23 +135,15 @@ def test_a_socket_port_reads_what_came_not_two_bytes_at_a_time() -> None:
 def test_a_socket_port_whose_server_went_away_is_source_lost() -> None:
     """``socket://`` (ser2net, a Wi-Fi bridge): the server closing is a lost source the
     daemon reconnects to, not an exception out of ``read`` that ends it."""
-    import socket
-
-    with socket.create_server(("127.0.0.1", 0)) as server:
-        port = server.getsockname()[1]
-        src = SerialSource(f"socket://127.0.0.1:{port}")
-        try:
-            conn, _ = server.accept()
-            conn.sendall(FRAME)
-            got = b""
-            deadline = time.monotonic() + 5.0
-            while len(got) < len(FRAME) and time.monotonic() < deadline:
-                chunk = src.read(0.5)
-                got += chunk[0] if chunk else b""
-            assert got == FRAME
-            conn.close()
-            with pytest.raises(SourceLostError, match=f"socket://127.0.0.1:{port}"):
-                for _ in range(10):
-                    src.read(0.5)
-        finally:
-            src.close()
+    with socket_port() as (src, conn, port):
+        conn.sendall(FRAME)
+        got = b""
+        deadline = time.monotonic() + 5.0
+        while len(got) < len(FRAME) and time.monotonic() < deadline:
+            chunk = src.read(0.5)
+            got += chunk[0] if chunk else b""
+        assert got == FRAME
+        conn.close()
+        with pytest.raises(SourceLostError, match=f"socket://127.0.0.1:{port}"):
+            for _ in range(10):
+                src.read(0.5)
