@@ -88,6 +88,7 @@ class Reconnecting:
             self._open_failures += 1
             if self._open_failures == 1:
                 log.warning("%s; retrying every %.1f s at most", exc, BACKOFF_MAX_S)
+                self._last_retry_log = now  # reminded a minute on
             elif (now - self._last_retry_log) / NS >= RETRY_LOG_EVERY_S:
                 log.warning(
                     "still cannot open %s after %d tries", self._source_desc(), self._open_failures

@@ -3,7 +3,8 @@
 A bad new config is refused and the running one stays. A new publish endpoint is bound
 before the old socket closes, so subscribers of an unchanged endpoint lose nothing; a
 new recording file is opened before the old one closes; the source is reopened only
-when the port or the sensor changed.
+when the port or the sensor changed (a new port's tries start afresh), and a replay's
+new speed paces the rest of its file from where it is.
 
 ``Reloading`` is a part of ``serve.Daemon`` (a base class of it): its methods run on the
 daemon's state, from the loop's housekeeping, never per frame.
@@ -21,10 +22,19 @@ from lunad.daemon.errors import EX_UNAVAILABLE, PublishError
 from lunad.daemon.health import Health
 from lunad.daemon.notify import Notifier
 from lunad.daemon.publisher import Publisher
+from lunad.daemon.reconnect import BACKOFF_FIRST_S
+from lunad.daemon.sources.base import Source
 from lunad.daemon.sources.recording import Recorder
-from lunad.daemon.sources.replay import check_replay
+from lunad.daemon.sources.replay import ReplaySource, check_replay
 
 log = logging.getLogger("lunad.serve")
+
+
+def _section(cfg: Config, name: str) -> object:
+    """``cfg``'s section (or setting) ``name``, as a reload compares it: [source] without
+    ``rate_hz``, which is [sensor]'s ``frame_rate_hz`` copied."""
+    section = getattr(cfg, name)
+    return section.model_copy(update={"rate_hz": 0}) if name == "source" else section
 
 
 def _same_file(a: str | os.PathLike[str], b: str | os.PathLike[str]) -> bool:
@@ -46,9 +56,12 @@ class Reloading:
     health: Health
     pub: Publisher | None
     recorder: Recorder | None
+    _source: Source | None
     exit_code: int
     _stopping: bool
     _next_open: int
+    _open_failures: int
+    _backoff: float
     _next_health: int
 
     if TYPE_CHECKING:  # defined by Daemon and Reconnecting
@@ -79,7 +92,7 @@ class Reloading:
         changed = [
             name
             for name in ("sensor", "source", "publish", "filter", "log_level")
-            if getattr(new, name) != getattr(old, name)
+            if _section(new, name) != _section(old, name)
         ]
         recorder = self.recorder
         wanted = new.source.record
@@ -115,10 +128,25 @@ class Reloading:
         self.health.filter_config = new.filter.to_filter_config()
         self.health.noise_configured = new.filter.sets_noise_model
         self.health.sensor = new.sensor.name
-        same_port = new.source.model_copy(update={"record": old.source.record}) == old.source
-        if not same_port or new.sensor != old.sensor:  # a new recording keeps the port open
+        kept: dict[str, object] = {"record": old.source.record}
+        same_port = new.source.model_copy(update=kept) == old.source
+        src = self._source
+        kept["speed"] = old.source.speed
+        if (
+            not same_port
+            and isinstance(src, ReplaySource)
+            and new.sensor == old.sensor
+            and new.source.model_copy(update=kept) == old.source
+        ):
+            src.set_speed(new.source.speed)  # the replay goes on from where it is
+            log.info("SIGHUP: %s", src)
+        elif not same_port or new.sensor != old.sensor:  # a new recording keeps the port open
             self._drop_source()
             self._next_open = now
+            if not same_port:  # the old port's failures are not the new one's
+                self._open_failures = 0
+                self._backoff = BACKOFF_FIRST_S
+                self.health.last_error = None
         log.info(
             "SIGHUP: configuration reloaded from %s (changed: %s)",
             where,

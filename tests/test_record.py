@@ -646,6 +646,24 @@ def test_bad_speed_is_rejected(speed: float) -> None:
         Pacer(speed)
 
 
+def test_a_new_speed_paces_the_rest_from_where_the_replay_is() -> None:
+    """Recording time played at the old speed stays played; what is left of the gap to
+    the pending chunk, and every gap after it, takes 1 / speed of its recorded time."""
+    now = [100.0]
+    pacer = Pacer(1.0, max_gap_s=None, clock=lambda: now[0])
+    ms = 1_000_000
+    assert pacer.due(0) == 100.0
+    assert pacer.due(1000 * ms) == 101.0
+    now[0] = 100.6  # 0.6 s of the 1 s gap played: 0.4 s of it left, at 4x 0.1 s
+    pacer.set_speed(4.0)
+    assert pacer.last_due_s == pytest.approx(100.7)
+    assert pacer.due(3000 * ms) == pytest.approx(101.2)
+    pacer.set_speed(0.5)  # before the pending chunk's due time
+    assert pacer.last_due_s == pytest.approx(100.6 + (3.0 - 0.6) / 0.5)
+    with pytest.raises(ValueError, match="speed"):
+        pacer.set_speed(0.0)
+
+
 # --- replay source -------------------------------------------------------------------
 
 

@@ -75,6 +75,43 @@ def test_a_replay_with_publish_hz_sends_its_last_frames(
         assert d.proc.wait(timeout=15) == 0
 
 
+def test_a_sighup_that_changes_only_the_speed_goes_on_where_the_replay_is(
+    start_daemon: Any, endpoint: str, tmp_path: Path
+) -> None:
+    """A SIGHUP that changed a replay's ``speed`` started the file again in the same
+    ``run``: 710 readings from a 493-frame file, ``t_mono_ns`` stepping back with no gap
+    in ``seq``. The new speed now paces the rest of the file: each frame once, in order."""
+    from lunad.daemon.sources.base import Chunk
+    from lunad.daemon.sources.recording import Recorder
+    from lunad.protocol.frame import encode_frame
+
+    rec = tmp_path / "slow.lunarec"
+    with Recorder(rec, source_desc="test", frame_rate_hz=250) as r:
+        for k in range(400):  # 2000 frames, 8 s at 1x
+            r(Chunk(encode_frame(100 + k % 50, 3000, 2368) * 5, 10**12 + (k + 1) * 20_000_000))
+    cfg = tmp_path / "replay.toml"
+    cfg.write_text(f'[source]\nkind = "replay"\npath = "{rec}"\nspeed = 1.0\n')
+    d = start_daemon("--config", str(cfg), "--publish", endpoint)
+    ranges: list[RangeMessage] = []
+    last: HealthMessage | None = None
+    with Subscriber(endpoint) as sub:
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and (last is None or last.state != "stopped"):
+            msg = sub.recv(timeout_s=1.0)
+            if isinstance(msg, RangeMessage):
+                ranges.append(msg)
+                if len(ranges) == 100:  # 0.4 s in: four times as fast from here
+                    cfg.write_text(cfg.read_text().replace("speed = 1.0", "speed = 4.0"))
+                    d.proc.send_signal(signal.SIGHUP)
+            elif isinstance(msg, HealthMessage):
+                last = msg
+    assert d.proc.wait(timeout=15) == 0, d.log
+    assert f"SIGHUP: replay {rec} at 4x" in d.log and "changed: source" in d.log, d.log
+    assert [m.seq for m in ranges] == list(range(2000)), d.log
+    assert [m.t_mono_ns for m in ranges] == sorted(m.t_mono_ns for m in ranges)
+    assert d.log.count(f"opened replay {rec}") == 1, d.log
+
+
 def comparable(msgs: list[RangeMessage]) -> list[dict[str, Any]]:
     # a run per daemon start; a message a subscriber got from the cache on joining says so
     return [m.model_dump(exclude={"t_unix_ns", "run", "cached", "age_ms"}) for m in msgs]

@@ -521,6 +521,39 @@ def test_sighup_reload_good_and_bad(
     assert "Traceback" not in log
 
 
+def test_a_sighup_that_fixes_the_i2c_address_starts_its_tries_afresh(
+    start_daemon: Any, endpoint: str, tmp_path: Path, helpers: Any
+) -> None:
+    """A reload that fixed a wrong I2C address while the daemon retried it left the old
+    address's error on health, beside ``connected``, and logged the new one as opened
+    "after N failed tries". The reminder that a port still cannot be opened came at the
+    second try, not a minute after the first warning."""
+    cfg = tmp_path / "i2c.toml"
+    cfg.write_text(
+        '[sensor]\nframe_rate_hz = 100\n[source]\nkind = "i2c"\nbus = "sim"\naddress = 0x11\n'
+        f'[publish]\nendpoint = "{endpoint}"\nhealth_interval_s = 0.2\n'
+    )
+    d = start_daemon("--config", str(cfg))
+    with Subscriber(endpoint) as sub:
+        failing = helpers.wait_for(
+            sub,
+            lambda m: isinstance(m, HealthMessage) and m.state == "reconnecting" and m.uptime_s > 1,
+            timeout=helpers.startup_s,
+        )
+        assert failing.last_error is not None and "address 0x11" in failing.last_error
+        assert "still cannot" not in d.log  # 4 tries in 1 s; reminded a minute on, once a minute
+        cfg.write_text(cfg.read_text().replace("0x11", "0x10"))
+        d.proc.send_signal(signal.SIGHUP)
+        helpers.wait_for(sub, helpers.is_range, timeout=10)
+        now = helpers.wait_for(
+            sub, lambda m: isinstance(m, HealthMessage) and m.state == "connected", timeout=5
+        )
+    assert now.last_error is None, now
+    assert d.stop() == 0
+    assert "opened i2c bus sim address 0x10\n" in d.log, d.log
+    assert "failed tries" not in d.log and "still cannot" not in d.log, d.log
+
+
 def _free_tcp_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

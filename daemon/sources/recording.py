@@ -697,7 +697,31 @@ class Pacer:
                 gap_ns = min(gap_ns, self._max_gap_ns)
             self._offset_ns += gap_ns
         self._prev_ns = t_mono_ns
+        return self.last_due_s
+
+    @property
+    def last_due_s(self) -> float:
+        """Clock time (seconds) the last ``due`` call gave, at the speed now in force."""
+        assert self._start_s is not None, "due() not called yet"
         return self._start_s + self._offset_ns / 1e9 / self.speed
+
+    def set_speed(self, speed: float) -> None:
+        """Pace the chunks after now at ``speed``, from where the replay is.
+
+        The recording time already played at the old speed stays played: the clock's
+        start moves so that the rest of the recording, from the point reached now (at
+        most the last chunk given a due time), takes ``1 / speed`` of its recorded time.
+
+        Raises:
+            ValueError: ``speed`` is zero, negative or not finite.
+        """
+        if check_speed(speed) is None:
+            raise ValueError("Pacer needs a speed; use no pacing for as-fast-as-possible")
+        if self._start_s is not None:
+            now = self._clock()
+            played_ns = min(self._offset_ns, max(0.0, (now - self._start_s) * 1e9 * self.speed))
+            self._start_s = now - played_ns / 1e9 / speed
+        self.speed = speed
 
 
 def paced(

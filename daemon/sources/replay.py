@@ -61,6 +61,7 @@ class ReplaySource(Source):
         self.path = Path(path)
         self.speed = check_speed(speed)
         self.ignored_writes = 0
+        self._max_gap_s = max_gap_s
         self._pacer = None if speed is None else Pacer(speed, max_gap_s)
         try:
             self._replay = Replay(self.path)
@@ -141,6 +142,22 @@ class ReplaySource(Source):
             raise SourceLostError(f"cannot read recording {self.path}: {exc}") from exc
         self._due_s = None
         return chunk
+
+    def set_speed(self, speed: float | None) -> None:
+        """Play the rest of the recording at ``speed`` (None: as fast as possible), from
+        where it is: a SIGHUP that changes only ``--speed`` does not start it again.
+
+        Raises:
+            ValueError: ``speed`` is zero, negative or not finite.
+        """
+        self.speed = check_speed(speed)
+        if speed is not None and self._pacer is not None:
+            self._pacer.set_speed(speed)
+            if self._due_s is not None:  # the next chunk's due time, at the new speed
+                self._due_s = self._pacer.last_due_s
+            return
+        self._pacer = None if speed is None else Pacer(speed, self._max_gap_s)
+        self._due_s = None  # a new pacer's clock starts at the next read
 
     def _wait(self, timeout_s: float) -> bool:
         """Sleep up to ``timeout_s`` seconds; True (and the wake-up consumed) if cancelled."""
