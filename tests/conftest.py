@@ -243,12 +243,29 @@ def recording_refused(device: str, endpoint: str, path: Path) -> list[str]:
     return said
 
 
+def wait_caught(proc: subprocess.Popen[Any], signum: int, timeout_s: float = 30.0) -> None:
+    """Wait until ``proc`` catches ``signum`` (its SigCgt mask in /proc): lunad's first
+    handlers are installed as ``main`` starts. Before that the interpreter is still
+    starting, which no Python code can cover: about 30-50 ms here, and several times
+    that on a loaded machine, so a signal sent a fixed time after the spawn tested the
+    machine's load instead of lunad."""
+    deadline = time.monotonic() + timeout_s
+    status = Path(f"/proc/{proc.pid}/status")
+    while time.monotonic() < deadline and proc.poll() is None:
+        for line in status.read_text().splitlines():
+            if line.startswith("SigCgt:") and int(line.split()[1], 16) >> (signum - 1) & 1:
+                return
+        time.sleep(0.001)
+    pytest.fail(f"{proc.args} caught no {signal.Signals(signum).name} within {timeout_s} s")
+
+
 @pytest.fixture
 def helpers() -> Any:
     """Small helpers for tests (conftest modules are not importable by name)."""
 
     class H:
         recording_refused = staticmethod(recording_refused)
+        wait_caught = staticmethod(wait_caught)
         wait_for = staticmethod(wait_for)
         is_range = staticmethod(is_range)
         health_state = staticmethod(health_state)

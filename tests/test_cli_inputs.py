@@ -8,6 +8,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -300,6 +301,76 @@ def test_sim_removes_its_link_on_a_hangup_as_on_a_stop(
         p.kill()
     assert p.returncode == 0, err
     assert "good frames" in out and not os.path.lexists(link)
+
+
+@pytest.mark.parametrize("delay_s", [0.0, 0.1, 0.25])
+@pytest.mark.parametrize(
+    ("command", "sig"),
+    [
+        ("record", signal.SIGTERM),
+        ("record", signal.SIGINT),
+        ("sim", signal.SIGTERM),
+        ("sim", signal.SIGHUP),
+        ("watch", signal.SIGTERM),
+        ("watch", signal.SIGINT),
+    ],
+    ids=lambda v: v if isinstance(v, str) else signal.Signals(v).name,
+)
+def test_a_stop_while_a_tool_starts_exits_0(
+    tmp_path: Path, helpers: Any, command: str, sig: int, delay_s: float
+) -> None:
+    """A stop in the first 0.3 s of ``lunad record`` ended it by the signal (143, or a
+    KeyboardInterrupt traceback), where its help says exit 0; so did ``sim`` and
+    ``watch``. From the moment lunad's first code runs, a stop is noted and acted on
+    once the command's own handlers are in place: exit 0, and a sim leaves no link."""
+    link = tmp_path / "tfluna"
+    args = {
+        "record": ["--device", str(tmp_path / "none"), "--out", str(tmp_path / "r.lunarec")],
+        "sim": ["--link", str(link)],
+        "watch": ["--connect", f"ipc://{tmp_path}/nobody.sock"],
+    }[command]
+    p = subprocess.Popen(
+        [*helpers.lunad, command, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        helpers.wait_caught(p, signal.SIGTERM)
+        assert "pydantic_core" not in Path(f"/proc/{p.pid}/maps").read_text(), (
+            "caught its first SIGTERM only after its imports"
+        )
+        time.sleep(delay_s)  # the moment of the signal is what this test is about
+        p.send_signal(sig)
+        _, err = p.communicate(timeout=30)
+    finally:
+        p.kill()
+    assert p.returncode == 0, err
+    assert "Traceback" not in err and not os.path.lexists(link), err
+
+
+def test_a_second_stop_while_the_sim_stops_is_ignored(tmp_path: Path, helpers: Any) -> None:
+    """A second Ctrl-C while the sim removed its link got the signal's default action
+    back from Python's shutdown, and ended it by the signal; it is ignored once the
+    first has stopped it."""
+    link = tmp_path / "tfluna"
+    for _ in range(3):
+        p = subprocess.Popen(
+            [*helpers.lunad, "sim", "--link", str(link)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        try:
+            assert p.stdout is not None and "virtual TF-Luna on" in p.stdout.readline()
+            p.send_signal(signal.SIGINT)
+            for _ in range(20):
+                time.sleep(0.005)
+                if p.poll() is not None:
+                    break
+                p.send_signal(signal.SIGTERM)
+            _, err = p.communicate(timeout=30)
+        finally:
+            p.kill()
+        assert p.returncode == 0, err
+        assert not os.path.lexists(link), err
 
 
 def test_record_over_i2c_names_the_bus_in_its_header(tmp_path: Path, helpers: Any) -> None:

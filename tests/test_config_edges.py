@@ -387,30 +387,20 @@ def _wait_serving(d: Any, endpoint: str) -> None:
         wait_for_health(sub, d.proc, lambda m: m.state == "reconnecting")
 
 
-def _wait_handlers(proc: subprocess.Popen[bytes]) -> None:
-    """Wait until ``proc`` catches SIGHUP (its SigCgt mask in /proc), and check that it
+def _wait_handlers(proc: subprocess.Popen[bytes], helpers: Any) -> None:
+    """Wait until ``proc`` catches SIGHUP (``helpers.wait_caught``), and check that it
     did so before the daemon's imports (pyzmq not yet in its memory map): lunad's first
     handlers, for SIGHUP, SIGTERM and SIGINT at once, installed as ``main`` starts
-    (SIGINT is the marker no more: the interpreter catches it from its own start).
-    Before that the interpreter is still starting, which no Python code can cover:
-    about 30-50 ms here, and several times that on a loaded machine, so a signal sent
-    a fixed time after the spawn tested the machine's load instead of lunad."""
-    deadline = time.monotonic() + RUN_TIMEOUT_S
-    proc_dir = Path(f"/proc/{proc.pid}")
-    while time.monotonic() < deadline and proc.poll() is None:
-        for line in (proc_dir / "status").read_text().splitlines():
-            if line.startswith("SigCgt:") and int(line.split()[1], 16) >> (signal.SIGHUP - 1) & 1:
-                assert "zmq" not in (proc_dir / "maps").read_text(), (
-                    "lunad serve caught its first signal only after its imports"
-                )
-                return
-        time.sleep(0.001)
-    pytest.fail(f"lunad serve caught no SIGHUP within {RUN_TIMEOUT_S} s")
+    (SIGINT is the marker no more: the interpreter catches it from its own start)."""
+    helpers.wait_caught(proc, signal.SIGHUP, RUN_TIMEOUT_S)
+    assert "zmq" not in Path(f"/proc/{proc.pid}/maps").read_text(), (
+        "lunad serve caught its first signal only after its imports"
+    )
 
 
 @pytest.mark.parametrize("delay_s", [0.0, 0.05, 0.1, 0.15, 0.2, 0.25])
 def test_sighup_while_serve_starts_neither_kills_nor_stops_it(
-    start_daemon: Any, endpoint: str, tmp_path: Path, delay_s: float
+    start_daemon: Any, endpoint: str, tmp_path: Path, delay_s: float, helpers: Any
 ) -> None:
     """SIGHUP kept its default action (end the process) until the daemon's handlers
     were installed, after the imports and the config, about 0.2 s after the start: a
@@ -418,7 +408,7 @@ def test_sighup_while_serve_starts_neither_kills_nor_stops_it(
     clean exit, left it dead. From the moment lunad's first code runs (``_wait_handlers``)
     through the imports and the config, it is noted and the daemon serves."""
     d = start_daemon("--device", str(tmp_path / "none"), "--publish", endpoint)
-    _wait_handlers(d.proc)
+    _wait_handlers(d.proc, helpers)
     time.sleep(delay_s)  # the moment of the signal is what this test is about
     d.proc.send_signal(signal.SIGHUP)
     _wait_serving(d, endpoint)
@@ -430,13 +420,13 @@ def test_sighup_while_serve_starts_neither_kills_nor_stops_it(
 @pytest.mark.parametrize("delay_s", [0.0, 0.1, 0.25])
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
 def test_a_stop_while_serve_starts_exits_0(
-    start_daemon: Any, endpoint: str, tmp_path: Path, delay_s: float, sig: int
+    start_daemon: Any, endpoint: str, tmp_path: Path, delay_s: float, sig: int, helpers: Any
 ) -> None:
     """SIGTERM's default action ended the process (code -15) and SIGINT raised
     KeyboardInterrupt (exit 130) while it started; now both stop it cleanly, as they
     do once it runs, from the moment lunad's first code runs (``_wait_handlers``)."""
     d = start_daemon("--device", str(tmp_path / "none"), "--publish", endpoint)
-    _wait_handlers(d.proc)
+    _wait_handlers(d.proc, helpers)
     time.sleep(delay_s)  # the moment of the signal is what this test is about
     d.proc.send_signal(sig)
     try:

@@ -14,7 +14,7 @@ import logging
 import sys
 from collections.abc import Sequence
 
-from lunad.daemon.cli.signals import StartupSignals, ignore_while_exiting
+from lunad.daemon.cli.signals import ignore_while_exiting, startup_signals
 
 SUBCOMMANDS = (
     "lunad.daemon.cli.serve",
@@ -86,7 +86,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     words = sys.argv[1:] if argv is None else list(argv)
     # The sub-command's name is the first word (lunad's own options all exit at once).
     command = words[0] if words else None
-    startup = StartupSignals() if command == "serve" else None
+    startup = startup_signals(command)
     parser = build_parser()
     args, extra = parser.parse_known_args(words)
     if extra:
@@ -101,7 +101,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BrokenPipeError:
         return 0
     finally:
-        if command in ("serve", "record"):
+        if startup is not None:
             # Their stop handlers get the default action back while Python shuts down:
             # a stop then would end the process by the signal instead of their code.
             ignore_while_exiting()

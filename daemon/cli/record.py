@@ -101,6 +101,9 @@ def run(args: argparse.Namespace) -> int:
 
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, on_signal)
+    startup = getattr(args, "startup_signals", None)
+    if startup is not None and startup.stopped("lunad record"):
+        return 0  # before --out is touched
     deadline = None if args.duration is None else time.monotonic() + args.duration
     backoff = 0.1
     failures = 0  # opens that failed in a row

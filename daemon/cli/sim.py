@@ -179,6 +179,15 @@ def run(args: argparse.Namespace) -> int:
             duration = length
     else:
         truth = Truth(args.distance, args.reflectivity, args.angle, args.lux)
+    done = threading.Event()
+    # SIGHUP too (its terminal closed, an SSH session ended): killed by it, the sim left
+    # its link to a pty number the next pty takes, and a daemon opening the link then
+    # read another program's terminal, or another sim.
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, lambda *_: done.set())
+    startup = getattr(args, "startup_signals", None)
+    if startup is not None and startup.stopped("lunad sim"):
+        return 0  # before a pty and its link are made
     try:
         out = open(args.truth_out, "w", encoding="utf-8") if args.truth_out else None
     except OSError as exc:
@@ -187,12 +196,6 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return EX_CONFIG
-    done = threading.Event()
-    # SIGHUP too (its terminal closed, an SSH session ended): killed by it, the sim left
-    # its link to a pty number the next pty takes, and a daemon opening the link then
-    # read another program's terminal, or another sim.
-    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
-        signal.signal(sig, lambda *_: done.set())
     try:
         if out is not None:
             out.write(TRUTH_OUT_HEADER + "\n")

@@ -636,7 +636,17 @@ def run(args: argparse.Namespace) -> int:
         )
         return EXIT_USAGE
     curve = None if keys[0] is None or keys[1] is None else (keys[0], keys[1])
-    Interrupts(signal.SIGTERM)  # as Ctrl-C: `timeout` or a supervisor gets the summary too
+    # The imports first, while a stop is only noted (``startup_signals``): a
+    # KeyboardInterrupt inside them (in a string ``exec`` that dataclasses and pydantic
+    # run) has CPython end the process by SIGINT at exit, though it was caught.
+    import lunad.daemon.config
+    import lunad.protocol.client  # noqa: F401
+
+    # as Ctrl-C: `timeout` or a supervisor gets the summary too; the second one is ignored
+    Interrupts(signal.SIGTERM, signal.SIGINT)
+    startup = getattr(args, "startup_signals", None)
+    if startup is not None and startup.stopped("lunad watch"):
+        return 0
     try:
         if args.refresh:
             result = screen(args.connect, args.sensor, args.count, args.duration, curve)
