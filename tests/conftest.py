@@ -256,7 +256,7 @@ def wait_caught(proc: subprocess.Popen[Any], signum: int, timeout_s: float = 30.
             if line.startswith("SigCgt:") and int(line.split()[1], 16) >> (signum - 1) & 1:
                 return
         time.sleep(0.001)
-    pytest.fail(f"{proc.args} caught no {signal.Signals(signum).name} within {timeout_s} s")
+    pytest.fail(f"{proc.args!r} caught no {signal.Signals(signum).name} within {timeout_s} s")
 
 
 @pytest.fixture
