@@ -462,9 +462,10 @@ def endpoint_problem(endpoint: str) -> str | None:
 
     Taken: ``tcp://HOST:PORT`` with HOST ``*``, an IPv4 address, an interface or host
     name, or an IPv6 address in brackets (``tcp://[::1]:7781``, ``tcp://[::]:7781``),
-    and ``ipc://PATH``. Refused, although libzmq would bind them: a wildcard port
+    and ``ipc:///PATH``. Refused, although libzmq would bind them: a wildcard port
     (``tcp://HOST:*``) binds a port the kernel picks, which no subscriber can know;
-    ``inproc://`` reaches only sockets inside the daemon's own process.
+    ``inproc://`` reaches only sockets inside the daemon's own process; a relative ipc
+    path is the daemon's working directory's.
     """
     if endpoint.startswith("inproc://"):
         return (
@@ -472,7 +473,15 @@ def endpoint_problem(endpoint: str) -> str | None:
             f"subscriber could connect; use {ENDPOINT_FORMS}"
         )
     if endpoint.startswith("ipc://"):
-        return None if _IPC_RE.fullmatch(endpoint) else f"must look like {ENDPOINT_FORMS}"
+        if not _IPC_RE.fullmatch(endpoint):
+            return f"must look like {ENDPOINT_FORMS}"
+        if not endpoint.startswith("ipc:///"):
+            return (
+                "the ipc path is relative: the daemon would bind it in its own working "
+                "directory (/ under systemd), which subscribers do not share; give it "
+                "whole, as in ipc:///run/lunad/front.sock"
+            )
+        return None
     m = _TCP_RE.fullmatch(endpoint)
     if m is None:
         return f"must look like {ENDPOINT_FORMS}"

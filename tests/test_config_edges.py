@@ -498,6 +498,8 @@ def test_a_stop_while_serve_or_record_exits_keeps_its_exit_code(
         ("tcp://[localhost]:7781", "[localhost] is not an IPv6 address"),
         ("tcp://[::1]:0", "the TCP port must be 1..65535"),
         ("tcp://127.0.0.1:7781\n", "must look like tcp://HOST:PORT"),
+        ("ipc://lunad.sock", "the ipc path is relative: the daemon would bind it in its own"),
+        ("ipc://./run/x.sock", "the ipc path is relative"),
     ],
 )
 def test_endpoints_no_subscriber_could_reach_are_refused(endpoint: str, needle: str) -> None:
