@@ -4,7 +4,8 @@
 // Install: npm install   (here, in examples/: the zeromq package pinned in package.json)
 // Run:     node node_subscriber.mjs ENDPOINT SENSOR [--count N] [--stale-ms M]   (M: 200)
 // Prints "seq range_m status" per reading, then "received N lost L duplicates D".
-// Exits 0 after N readings, 3 after M ms without a reading ("STALE"), 1 or 2 on errors.
+// Exits 0 after N readings or on SIGINT/SIGTERM, 3 after M ms without a reading ("STALE"),
+// 1 or 2 on errors.
 import { Subscriber } from "zeromq";
 
 const [endpoint, sensor = "", ...opts] = process.argv.slice(2);
@@ -22,7 +23,8 @@ if (bad || !(staleMs > 0) || !Number.isInteger(count) || count < 0) {
 
 const wantRange = `range/${sensor}/`;
 const wantHealth = `health/${sensor}/`;
-const sub = new Subscriber({ linger: 0 });
+// A longer message is not lunad's (its own are at most 64 KiB): libzmq does not read it.
+const sub = new Subscriber({ linger: 0, maxMessageSize: 1 << 20 });
 sub.connect(endpoint);
 // The final "/" makes ZeroMQ's prefix match exact: range/front/ never gets range/frontleft/.
 sub.subscribe(wantRange, wantHealth);
@@ -49,6 +51,7 @@ const arm = () => {
   timer = setTimeout(() => finish(3, `STALE no reading for ${staleMs} ms`), left);
 };
 arm();
+for (const sig of ["SIGINT", "SIGTERM"]) process.on(sig, () => finish(0));
 
 for await (const parts of sub) {
   if (parts.length !== 2) continue; // lunad's messages: a topic, then JSON
@@ -75,7 +78,10 @@ for await (const parts of sub) {
   // seq as a Number is exact up to 2^53: 1.1 million years at 250 Hz.
   const ok = Number.isSafeInteger(msg.seq) && msg.seq >= 0 && Number.isSafeInteger(msg.frames)
     && msg.frames >= 1 && typeof msg.run === "string" && typeof msg.status === "string"
-    && (msg.range_m === null || Number.isFinite(msg.range_m))
+    && msg.sensor === sensor && (msg.range_m === null || Number.isFinite(msg.range_m))
+    && (msg.sigma_m === null || Number.isFinite(msg.sigma_m))
+    && (msg.status === "dropout") === (msg.range_m === null) // null exactly on a dropout
+    && (msg.status === "dropout") === (msg.sigma_m === null)
     && typeof msg.cached === "boolean" && Number.isInteger(msg.age_ms) && msg.age_ms >= 0;
   if (!ok) {
     console.error("malformed");
@@ -93,6 +99,10 @@ for await (const parts of sub) {
   const made = performance.now() - (msg.cached ? msg.age_ms : 0);
   deadline = Math.max(deadline, made + staleMs);
   arm();
+  if (msg.cached && msg.age_ms > staleMs) { // older than our own limit: stale, as the
+    msg.range_m = null; // daemon marks a cached one older than its own
+    msg.status = "dropout";
+  }
   const range = msg.range_m === null ? "null" : msg.range_m.toFixed(4); // null: dropout
   console.log(`${msg.seq} ${range} ${msg.status}${msg.cached ? " cached" : ""}`);
   if (count && received >= count) finish(0);

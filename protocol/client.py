@@ -34,14 +34,22 @@ caller. The subscriber applies the contract's rules:
   frames ``--publish-hz`` folds into one message are not loss; a new ``run`` (a daemon
   restart) starts the count again;
 - with ``stale_after_s``, iterating raises :class:`StaleStream` once no message has
-  come for that long, and ``alive`` says whether one has come within it;
-- messages that do not decode are counted in ``bad_messages`` and skipped.
+  come for that long (and, iterated again, after each further spell of that long), and
+  ``alive`` says whether one was made within it: a cached message counts from when it
+  was made (its ``age_ms``), not from when it came, and one older than
+  ``stale_after_s`` comes as a ``dropout`` with the reason ``stale``, as the daemon
+  sends one older than its own limit;
+- messages that do not decode, break the contract's rules or name another sensor than
+  their topic are counted in ``bad_messages`` and skipped, and so is one longer than
+  ``MAX_MESSAGE_BYTES`` (64 KiB), before it is parsed; one over 1 MiB ends the
+  connection (``SOCKET_MAX_MESSAGE_BYTES``).
 """
 
 from __future__ import annotations
 
 import math
 import os
+import re
 import time
 from collections import deque
 from collections.abc import Iterable, Iterator
@@ -54,14 +62,22 @@ from lunad.protocol.curve_keys import Z85_KEY_CHARS, read_key_file, z85_key
 from lunad.protocol.messages import (
     HEALTH_TOPIC,
     RANGE_TOPIC,
+    SENSOR_NAME_PATTERN,
     HealthMessage,
     Message,
     RangeMessage,
+    as_stale,
     decode,
 )
 
 RECONNECT_IVL_MS = 100
 RECONNECT_IVL_MAX_MS = 2000
+SOCKET_MAX_MESSAGE_BYTES = 1 << 20
+"""The longest message frame libzmq reads for us, bytes (our bound): past it libzmq ends
+the connection, and does not reconnect (a protocol error), rather than hold the message
+in memory; the publisher was not a lunad daemon, and ``alive`` and ``StaleStream`` say
+that nothing comes. Messages between ``MAX_MESSAGE_BYTES`` and this are read, refused
+before they are parsed, and counted in ``bad_messages``."""
 RATE_WINDOW_S = 2.0
 """Messages over this many seconds make ``rate_hz`` (our choice: steady, yet it follows a
 change of ``--publish-hz`` within a couple of seconds)."""
@@ -104,8 +120,8 @@ class Subscriber:
             file, or a (public, secret) pair of Z85 keys.
 
     Raises:
-        ValueError: a bad ``stale_after_s``, or a CURVE key that is not one (the message
-            says which argument and why).
+        ValueError: a bad ``stale_after_s``, ``sensor`` or ``kinds``, or a CURVE key that
+            is not one (the message says which argument and why).
     """
 
     def __init__(
@@ -120,6 +136,13 @@ class Subscriber:
     ) -> None:
         if stale_after_s is not None and not stale_after_s > 0:
             raise ValueError(f"stale_after_s must be above 0 seconds, got {stale_after_s!r}")
+        if sensor is not None and not re.fullmatch(SENSOR_NAME_PATTERN, sensor):
+            raise ValueError(
+                f"sensor: 1-64 of A-Z a-z 0-9 _ . - (as the daemon's config takes), got {sensor!r}"
+            )
+        kinds = (kinds,) if isinstance(kinds, str) else tuple(kinds)
+        if not kinds or not set(kinds) <= {RANGE_TOPIC, HEALTH_TOPIC}:
+            raise ValueError(f"kinds: 'range' and/or 'health', got {kinds!r}")
         if (curve_server_key is None) != (curve_client_key is None):
             raise ValueError(
                 "curve_server_key and curve_client_key go together: CURVE needs the "
@@ -139,11 +162,15 @@ class Subscriber:
         self._last: dict[str, tuple[str, int]] = {}  # sensor -> (run, seq)
         self._last_health: dict[bytes, bytes] = {}
         self._t_last = time.monotonic()
+        self._quiet_from = self._t_last
+        """Since when the silence ``__iter__`` raises ``StaleStream`` for is counted: the
+        last message, or the last time it raised."""
         self._arrivals: deque[float] = deque()
         self._received_any = False
         ctx = context or zmq.Context.instance()
         self._sock = ctx.socket(zmq.SUB)
         self._sock.setsockopt(zmq.LINGER, 0)
+        self._sock.setsockopt(zmq.MAXMSGSIZE, SOCKET_MAX_MESSAGE_BYTES)
         self._sock.setsockopt(zmq.RECONNECT_IVL, RECONNECT_IVL_MS)
         self._sock.setsockopt(zmq.RECONNECT_IVL_MAX, RECONNECT_IVL_MAX_MS)
         if curve is not None:
@@ -160,7 +187,8 @@ class Subscriber:
 
     @property
     def age_s(self) -> float:
-        """Seconds since the last message returned (since the start before the first)."""
+        """Seconds since the last message returned was made (a cached one's ``age_ms``
+        counts), or since the start before the first."""
         return time.monotonic() - self._t_last
 
     @property
@@ -208,13 +236,19 @@ class Subscriber:
             except (ValueError, ValidationError):
                 self.bad_messages += 1
                 continue
-            if isinstance(msg, RangeMessage) and not self._track(msg):
-                self.duplicates += 1
-                continue
+            if isinstance(msg, RangeMessage):
+                if not self._track(msg):
+                    self.duplicates += 1
+                    continue
+                if msg.cached:
+                    msg = self._stale_if_old(msg)
             if health:
                 self._last_health[topic] = payload
             now = time.monotonic()
-            self._t_last = now
+            made = now
+            if isinstance(msg, RangeMessage) and msg.cached:
+                made -= msg.age_ms / 1000
+            self._t_last = self._quiet_from = made
             self._received_any = True
             self._arrivals.append(now)
             self._forget(now)
@@ -227,12 +261,22 @@ class Subscriber:
             if self.stale_after_s is None:
                 msg = self.recv()
             else:
-                left = self.stale_after_s - self.age_s
+                left = self.stale_after_s - (time.monotonic() - self._quiet_from)
                 msg = self.recv(max(0.0, left))
-                if msg is None and self.age_s >= self.stale_after_s:
+                if msg is None and time.monotonic() - self._quiet_from >= self.stale_after_s:
+                    self._quiet_from = time.monotonic()  # iterating again waits another spell
                     raise StaleStream(self.endpoint, self.age_s)
             if msg is not None:
                 yield msg
+
+    def _stale_if_old(self, msg: RangeMessage) -> RangeMessage:
+        """A cached ``msg`` older than ``stale_after_s`` as the daemon sends one older
+        than its own limit: a ``dropout`` with the reason ``stale`` and no range
+        (docs/messages.md, "Cached and stale messages")."""
+        limit = self.stale_after_s
+        if limit is None or msg.age_ms <= limit * 1000 or msg.status == "dropout":
+            return msg
+        return as_stale(msg)
 
     def _wanted(self, topic: bytes) -> bool:
         """Whether ``topic`` is exactly one this subscriber asked for (v2 topics end in

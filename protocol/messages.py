@@ -17,7 +17,7 @@ import secrets
 from pathlib import Path
 from typing import Annotated, Any, ClassVar, Final, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 SCHEMA_VERSION = 2
 RANGE_TOPIC = "range"
@@ -31,6 +31,11 @@ RADIATION_TYPE: Final = "infrared"  # 850 nm VCSEL, DS p.2 (docs/tfluna.md secti
 U64_MAX = (1 << 64) - 1
 I64_MAX = (1 << 63) - 1
 U32_MAX = (1 << 32) - 1
+MAX_MESSAGE_BYTES = 65536
+"""Longest payload a subscriber takes, bytes (our bound). A range message is about 400
+bytes and a health message under 2 KiB; one much longer is not the daemon's, and
+decoding a long bad one costs its length many times over (pydantic copies the input
+into each error it reports: 1.3 GB for a 7.6 MiB one)."""
 
 Status = Literal["ok", "degraded", "dropout"]
 ReasonName = Literal[
@@ -55,11 +60,22 @@ U64 = Annotated[int, Field(ge=0, le=U64_MAX)]
 I64 = Annotated[int, Field(ge=-I64_MAX - 1, le=I64_MAX)]
 
 
+_STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, strict=True)
+"""Types as the JSON Schema has them: ``"5"`` is not an integer, nor ``1`` a boolean
+(an integer is a float); the Python client refuses what another language's consumer
+checking the shipped schema refuses."""
+
+
 class RangeMessage(BaseModel):
     """One cleaned reading (topic ``range/<sensor>/``). Distances in metres, times in
-    nanoseconds; docs/messages.md says what each field means to a robot."""
+    nanoseconds; docs/messages.md says what each field means to a robot.
 
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+    Besides each field's type, the contract's rules between fields hold: ``range_m``
+    and ``sigma_m`` are null exactly when ``status`` is ``dropout``, and an ``ok``
+    message has no reasons and is not in the ``unreliable`` zone.
+    """
+
+    model_config = _STRICT
     kind: ClassVar[str] = RANGE_TOPIC
 
     v: Literal[2] = 2
@@ -82,12 +98,27 @@ class RangeMessage(BaseModel):
     cached: bool = False
     age_ms: Annotated[int, Field(ge=0, le=U32_MAX)] = 0
 
+    @model_validator(mode="after")
+    def _status_rules(self) -> RangeMessage:
+        dropout = self.status == "dropout"
+        if dropout != (self.range_m is None) or dropout != (self.sigma_m is None):
+            raise ValueError(
+                "range_m and sigma_m are null exactly when status is dropout, got "
+                f"status {self.status!r}, range_m {self.range_m}, sigma_m {self.sigma_m}"
+            )
+        if self.status == "ok" and (self.reasons or self.zone == "unreliable"):
+            raise ValueError(
+                f"an ok message has no reasons and is not unreliable, got reasons "
+                f"{self.reasons} in zone {self.zone!r}"
+            )
+        return self
+
 
 class HealthMessage(BaseModel):
     """The daemon's state, about once a second, at every change and a last one when it
     stops (topic ``health/<sensor>/``)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+    model_config = _STRICT
     kind: ClassVar[str] = HEALTH_TOPIC
 
     v: Literal[2] = 2
@@ -126,8 +157,27 @@ def json_schemas() -> dict[str, dict[str, Any]]:
         doc["required"] = sorted(doc["properties"])  # every field is always sent
         doc["$schema"] = "https://json-schema.org/draft/2020-12/schema"
         doc["$id"] = f"https://lunad.invalid/schema/{model.kind}.v{SCHEMA_VERSION}.json"
+        if model is RangeMessage:
+            doc["allOf"] = _RANGE_STATUS_RULES
         out[f"{model.kind}.v{SCHEMA_VERSION}.json"] = doc
     return out
+
+
+_NULL, _NUMBER = {"type": "null"}, {"type": "number"}
+_RANGE_STATUS_RULES = [
+    {
+        "if": {"properties": {"status": {"const": "dropout"}}},
+        "then": {"properties": {"range_m": _NULL, "sigma_m": _NULL}},
+        "else": {"properties": {"range_m": _NUMBER, "sigma_m": _NUMBER}},
+    },
+    {
+        "if": {"properties": {"status": {"const": "ok"}}},
+        "then": {
+            "properties": {"reasons": {"maxItems": 0}, "zone": {"not": {"const": "unreliable"}}}
+        },
+    },
+]
+"""``RangeMessage``'s rules between fields, in JSON Schema (its ``_status_rules``)."""
 
 
 def topic(kind: str, sensor: str) -> bytes:
@@ -242,13 +292,26 @@ def as_cached(kind: str, payload: bytes, age_ms: int, stale_after_ms: int) -> by
         return payload
     msg = RangeMessage.model_validate_json(payload)
     age = max(0, min(U32_MAX, age_ms))
-    update: dict[str, Any] = {"cached": True, "age_ms": age}
+    msg = msg.model_copy(update={"cached": True, "age_ms": age})
     if age > stale_after_ms:
-        reasons = [r for r in msg.reasons if r != "stale"] + ["stale"]
-        update.update(
-            status="dropout", range_m=None, sigma_m=None, reasons=reasons, zone="unreliable"
-        )
-    return msg.model_copy(update=update).model_dump_json().encode()
+        msg = as_stale(msg)
+    return msg.model_dump_json().encode()
+
+
+def as_stale(msg: RangeMessage) -> RangeMessage:
+    """``msg`` as a cached message too old to act on is sent: a ``dropout`` with the
+    reason ``stale``, no range and the ``unreliable`` zone (docs/messages.md, "Cached
+    and stale messages")."""
+    reasons = [r for r in msg.reasons if r != "stale"] + ["stale"]
+    return msg.model_copy(
+        update={
+            "status": "dropout",
+            "range_m": None,
+            "sigma_m": None,
+            "reasons": reasons,
+            "zone": "unreliable",
+        }
+    )
 
 
 def encode_health(msg: HealthMessage) -> bytes:
@@ -260,15 +323,23 @@ def decode(topic_frame: bytes, payload: bytes) -> Message:
     """Decode a two-frame message into its typed model.
 
     Raises:
-        ValueError: unknown topic kind, or a payload that breaks the schema
-            (pydantic's ``ValidationError`` is a ``ValueError``).
+        ValueError: unknown topic kind, a payload over ``MAX_MESSAGE_BYTES``, one that
+            breaks the schema (pydantic's ``ValidationError`` is a ``ValueError``), or
+            one whose ``sensor`` is not the topic's.
     """
-    kind = topic_frame.split(b"/", 1)[0]  # v2 topics end in "/", v1 ones did not
+    kind, _, rest = topic_frame.partition(b"/")  # v2 topics end in "/", v1 ones did not
     if kind == RANGE_TOPIC.encode():
-        return RangeMessage.model_validate_json(payload)
-    if kind == HEALTH_TOPIC.encode():
-        return HealthMessage.model_validate_json(payload)
-    raise ValueError(f"unknown topic {topic_frame!r}")
+        model: type[Message] = RangeMessage
+    elif kind == HEALTH_TOPIC.encode():
+        model = HealthMessage
+    else:
+        raise ValueError(f"unknown topic {topic_frame!r}")
+    if len(payload) > MAX_MESSAGE_BYTES:
+        raise ValueError(f"a {len(payload)}-byte payload: over {MAX_MESSAGE_BYTES} bytes")
+    msg = model.model_validate_json(payload)
+    if rest and rest.rstrip(b"/") != msg.sensor.encode():
+        raise ValueError(f"a message of sensor {msg.sensor!r} on topic {topic_frame!r}")
+    return msg
 
 
 def reasons_json(reasons: tuple[str, ...]) -> bytes:

@@ -259,3 +259,169 @@ def test_a_repeated_health_message_is_dropped(tmp_path: Path) -> None:
     finally:
         pub.close(linger=0)
         ctx.term()
+
+
+@contextmanager
+def joined(ep: str, **kw: object) -> Iterator[tuple[zmq.Socket[bytes], Subscriber]]:
+    """A PUB socket bound on ``ep`` and a ``Subscriber`` that has got its first message
+    (the slow-joiner handshake done), its queue drained."""
+    ctx = zmq.Context()
+    pub = ctx.socket(zmq.PUB)
+    pub.bind(ep)
+    try:
+        with Subscriber(ep, sensor="c", **kw) as sub:  # type: ignore[arg-type]
+            deadline = time.monotonic() + 5
+            first = None
+            while first is None and time.monotonic() < deadline:
+                pub.send_multipart([topic("range", "c"), msg(0)])
+                first = sub.recv(timeout_s=0.05)
+            assert first is not None
+            while sub.recv(timeout_s=0.1) is not None:
+                pass
+            yield pub, sub
+    finally:
+        pub.close(linger=0)
+        ctx.term()
+
+
+def _with(n: int, **fields: object) -> bytes:
+    """``msg(n)`` with ``fields`` set."""
+    doc = json.loads(msg(n))
+    doc.update(fields)
+    return json.dumps(doc).encode()
+
+
+def test_what_the_schema_refuses_the_client_refuses(tmp_path: Path) -> None:
+    """The client converted ``"seq": "5"`` and ``"cached": 1`` and took a ``dropout``
+    with a range, or a message of sensor ``rear`` on ``range/c/``; a consumer checking
+    the shipped JSON Schema refused the first ones, and nobody the last. Each is now
+    skipped and counted, and the schema refuses each rule the client checks."""
+    from importlib import resources
+
+    import jsonschema
+
+    schema = json.loads(
+        resources.files("lunad.protocol").joinpath("schema", "range.v2.json").read_text()
+    )
+    bad = [
+        _with(1, seq="1"),
+        _with(2, range_m="1.5"),
+        _with(3, cached=1),
+        _with(4, amp="500"),
+        _with(5, status="dropout"),  # with a range and a sigma
+        _with(6, status="degraded", range_m=None),
+        _with(7, reasons=["outlier"]),  # ok, with a reason
+        _with(8, zone="unreliable"),  # ok, in the unreliable zone
+    ]
+    for payload in bad:
+        with pytest.raises(jsonschema.ValidationError):
+            jsonschema.validate(json.loads(payload), schema)
+    rear = json.loads(msg(9))
+    rear["sensor"] = "rear"
+    with joined(f"ipc://{tmp_path}/s.sock") as (pub, sub):
+        for payload in [*bad, json.dumps(rear).encode(), msg(10)]:
+            pub.send_multipart([topic("range", "c"), payload])
+        got = []
+        while (m := sub.recv(timeout_s=0.3)) is not None:
+            got.append(m)
+        assert [m.seq for m in got] == [10]  # type: ignore[union-attr]
+        assert sub.bad_messages == len(bad) + 1
+
+
+def test_an_oversized_message_costs_the_client_little(tmp_path: Path) -> None:
+    """A 7.6 MiB message breaking the schema in many fields cost the client 1.3 GB
+    (pydantic copied the input into each error), and a 190 MiB one ran a machine out
+    of memory. A message over ``MAX_MESSAGE_BYTES`` is refused before it is parsed
+    (here 4 MiB of them, 512 KiB each), and the next good one still arrives; libzmq
+    reads none over ``SOCKET_MAX_MESSAGE_BYTES``."""
+    ep = f"ipc://{tmp_path}/big.sock"
+    child = subprocess.Popen(
+        [sys.executable, "-c", (
+            "import resource, sys\n"
+            "from lunad.protocol.client import Subscriber\n"
+            "before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss\n"
+            f"with Subscriber({ep!r}, sensor='c') as sub:\n"
+            "    print('up', flush=True)\n"
+            "    m = sub.recv(timeout_s=20)\n"
+            "grown = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before\n"
+            "print(m is not None and m.seq, grown // 1024, sub.bad_messages, flush=True)\n"
+        )],
+        stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    ctx = zmq.Context()
+    pub = ctx.socket(zmq.PUB)
+    pub.bind(ep)
+    try:
+        assert child.stdout is not None and child.stdout.readline() == "up\n"
+        huge = b'{"v":2,"reasons":[' + b'"stale",' * (1 << 16) + b'"stale"]}'
+        time.sleep(0.5)  # the child's subscription has reached this socket
+        for _ in range(8):
+            pub.send_multipart([topic("range", "c"), huge])
+        pub.send_multipart([topic("range", "c"), msg(7)])
+        out, _ = child.communicate(timeout=20)
+    finally:
+        child.kill()
+        pub.close(linger=0)
+        ctx.term()
+    seq, grown_mib, bad = out.split()
+    assert seq == "7", out
+    assert int(grown_mib) < 32, out
+    assert bad == "8", out
+
+
+def test_a_cached_message_counts_from_when_it_was_made(tmp_path: Path) -> None:
+    """A cached ``ok`` 480 ms old came to a subscriber with ``stale_after_s=0.2`` as
+    live, with ``alive`` true and ``age_s`` 0: robot code acting on ``range_m`` acted
+    on a reading older than its own limit. It comes as a ``stale`` dropout, as the
+    daemon sends one older than its own limit, and counts as silence."""
+    with joined(f"ipc://{tmp_path}/c.sock", stale_after_s=0.2) as (pub, sub):
+        pub.send_multipart([topic("range", "c"), _with(5, cached=True, age_ms=480)])
+        m = sub.recv(timeout_s=2)
+        assert isinstance(m, RangeMessage) and m.seq == 5
+        assert m.status == "dropout" and m.range_m is None and m.sigma_m is None
+        assert m.reasons == ["stale"] and m.zone == "unreliable"
+        assert sub.age_s >= 0.48 and not sub.alive
+        pub.send_multipart([topic("range", "c"), _with(6, cached=True, age_ms=50)])
+        m = sub.recv(timeout_s=2)
+        assert isinstance(m, RangeMessage) and m.status == "ok" and m.range_m == 1.0
+        assert sub.alive
+
+
+def test_iterating_again_after_stale_stream_waits_another_spell(tmp_path: Path) -> None:
+    """A loop that caught ``StaleStream`` and iterated again to wait for the daemon got
+    it again at once, without waiting: 495,321 times in 2 s, a CPU busy."""
+    with Subscriber(f"ipc://{tmp_path}/none.sock", stale_after_s=0.1) as sub:
+        raised = 0
+        end = time.monotonic() + 1.0
+        while time.monotonic() < end:
+            try:
+                for _ in sub:
+                    pass
+            except StaleStream:
+                raised += 1
+    assert 1 <= raised <= 11
+
+
+@pytest.mark.parametrize(
+    ("kw", "needle"),
+    [
+        ({"kinds": ["ranges"]}, "kinds: 'range' and/or 'health'"),
+        ({"kinds": []}, "kinds: 'range' and/or 'health'"),
+        ({"sensor": "front/"}, "sensor: 1-64 of"),
+        ({"sensor": ""}, "sensor: 1-64 of"),
+    ],
+)
+def test_arguments_that_would_subscribe_to_nothing_are_refused(
+    tmp_path: Path, kw: dict[str, object], needle: str
+) -> None:
+    """Each subscribed to topics that never come and waited in silence: a typo looked
+    like a dead daemon."""
+    with pytest.raises(ValueError, match=needle):
+        Subscriber(f"ipc://{tmp_path}/x.sock", **kw)  # type: ignore[arg-type]
+
+
+def test_kinds_may_be_one_name(tmp_path: Path) -> None:
+    """``kinds="range"`` subscribed to each of its letters, and got nothing."""
+    with joined(f"ipc://{tmp_path}/k.sock", kinds="range") as (pub, sub):
+        pub.send_multipart([topic("range", "c"), msg(3)])
+        assert isinstance(sub.recv(timeout_s=2), RangeMessage)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import re
 import shutil
+import signal
 import subprocess
 import time
 from collections.abc import Callable, Iterator
@@ -216,6 +217,8 @@ def test_rules_of_the_contract(consumer: list[str], publisher: tuple[str, Publis
             # 6 and 7 lost: a gap of 2
             (topic("range", "front"), reading("front", run_a, 8, 1.008, 1, "degraded", OUTLIER)),
             (topic("range", "front"), v1),  # another schema: skipped
+            (topic("range", "front"), reading("rear", run_a, 9, 1.009)),  # not front's
+            (topic("range", "front"), reading("front", run_a, 9, 1.009, 1, "dropout", WEAK)),
             (b"range/front/x", reading("front", run_a, 10, 1.01)),  # not the exact topic
             (topic("range", "front"), b0),  # a daemon restart: seq from 0, not a duplicate
             (topic("range", "front"), as_cached("range", b0, 3, 500)),  # cache re-sent: duplicate
@@ -240,6 +243,35 @@ def test_rules_of_the_contract(consumer: list[str], publisher: tuple[str, Publis
         "received 6 lost 2 duplicates 2\n",
     ), err
     assert "not schema v2" in err and "health connected" in err, err
+    assert err.count("malformed") == 2, err  # another sensor's; a dropout with a range
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_an_old_cached_reading_is_stale_and_a_stop_prints_the_summary(
+    consumer: list[str], publisher: tuple[str, Publisher], sig: int
+) -> None:
+    """A cached reading older than --stale-ms is printed as a dropout (the daemon's own
+    limit, here 60 s, had not marked it); SIGINT and SIGTERM ended the examples
+    without their summary line (130, 143)."""
+    endpoint, pub = publisher
+    run = new_run_id()
+    proc = start(consumer, endpoint, "front", "--stale-ms", "30000")
+    try:
+        pub.wait_for_subscriptions(b"range/front/", b"health/front/")
+        pub.send(
+            topic("range", "front"), as_cached("range", reading("front", run, 4, 1.5), 40000, 60000)
+        )
+        pub.send(topic("range", "front"), reading("front", run, 5, 1.5))
+        assert proc.stdout is not None
+        assert proc.stdout.readline() == "4 null dropout cached\n"
+        assert proc.stdout.readline() == "5 1.5000 ok\n"
+        proc.send_signal(sig)
+        code, out, err = finish(proc, 30.0)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert (code, out) == (0, "received 2 lost 0 duplicates 0\n"), err
 
 
 def test_silence_is_stale(consumer: list[str], publisher: tuple[str, Publisher]) -> None:

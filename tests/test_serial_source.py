@@ -114,7 +114,8 @@ def test_a_read_of_a_url_port_takes_at_most_one_read_of_a_tty() -> None:
         os.close(master)
         os.close(slave)
     assert sum(sizes) == len(sent)
-    assert max(sizes) == READ_MAX_BYTES and 2 * READ_MAX_BYTES + 16 <= MAX_TORN_BYTES
+    # a pty hands over 4095 or 4096 bytes a read, by kernel: at most one read of it
+    assert max(sizes) <= READ_MAX_BYTES and 2 * READ_MAX_BYTES + 16 <= MAX_TORN_BYTES
 
 
 def test_a_socket_port_reads_what_came_not_two_bytes_at_a_time() -> None:

@@ -573,7 +573,10 @@ def test_render_fits_80_by_24_with_the_widest_values() -> None:
     model = ScreenModel("ipc:///run/lunad/" + "n" * 100 + ".sock", started=0.0)
     long_reasons = ["weak_signal", "saturated", "high_ambient", "too_close", "too_far"]
     for i in range(100):
-        model.add(_range(2**63, 7.9999 if i % 2 else None, reasons=long_reasons), now=1.0)
+        status = "degraded" if i % 2 else "dropout"  # an ok message has no reasons
+        model.add(
+            _range(2**63, 7.9999 if i % 2 else None, reasons=long_reasons, status=status), now=1.0
+        )
     model.add(_health("reconnecting"), now=1.0)
     for now in (1.0, 100.0, 10**6):
         rows = render(model, now)
