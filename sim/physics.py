@@ -152,6 +152,11 @@ class PaperSensor:
         return RawReading(max(0, min(0xFFFF, round(d * 100.0))), amp, sigma / s)
 
 
+NOISE_SCALE_MAX = 1000.0
+"""Largest ``noise_scale`` (our bound): 1000 times the noise is metres of it at any
+range, no sensor at all; past about 1e307 a reading overflows to infinity."""
+
+
 class RealisticSensor:
     """The realistic profile: amp from R, cos(theta) and d^2, sensor rules, spikes.
 
@@ -175,8 +180,10 @@ class RealisticSensor:
         spike_probability: float = SPIKE_PROBABILITY,
         amp_noise: float = AMP_NOISE_FRACTION,
     ) -> None:
-        if noise_scale <= 0.0:
-            raise ValueError(f"noise_scale must be positive, got {noise_scale!r}")
+        if not 0.0 < noise_scale <= NOISE_SCALE_MAX:
+            raise ValueError(
+                f"noise_scale must be above 0 and at most {NOISE_SCALE_MAX:g}, got {noise_scale!r}"
+            )
         self.noise_scale = noise_scale
         self.sigma0_m = sigma0_m * noise_scale
         self.k_m_per_lux = k_m_per_lux * noise_scale

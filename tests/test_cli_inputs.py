@@ -83,7 +83,10 @@ def run_lunad(helpers: Any, *args: str) -> subprocess.CompletedProcess[str]:
     [
         (["--distance", "nan"], "--distance must be within 0.01..100, got nan"),
         (["--lux", "inf"], "--lux must be within 0..200000, got inf"),
-        (["--noise-scale", "nan"], "--noise-scale must be positive and finite, got nan"),
+        (["--noise-scale", "nan"], "--noise-scale must be above 0 and at most 1000, got nan"),
+        (["--noise-scale", "1e308"], "--noise-scale must be above 0 and at most 1000"),
+        (["--scenario", "static", "--lux", "90000"], "--lux: --scenario sets the truth"),
+        (["--scenario", "static", "--distance", "2"], "--distance: --scenario sets the truth"),
         (["--reflectivity", "nan", "--profile", "paper"], "--reflectivity must be within 0..10"),
         (["--angle", "95"], "--angle must be within 0..90, got 95.0"),
     ],
@@ -383,3 +386,29 @@ def test_record_over_i2c_names_the_bus_in_its_header(tmp_path: Path, helpers: An
     assert r.returncode == 0, r.stderr
     with Replay(out) as rep:
         assert rep.header.source_desc == "i2c bus sim address 0x10"
+
+
+@pytest.mark.parametrize(
+    ("command", "line"),
+    [
+        (
+            ["eval", "--noise-scale", "1e308"],
+            "argument --noise-scale: at most 1000, got '1e308'",  # an OverflowError, exit 1
+        ),
+        (
+            ["sweep", "--readings", "1000000000"],
+            "argument --readings: at most 100000, got '1000000000'",  # past 5 GB in 15 s
+        ),
+        (
+            ["soak", "--duration", "100000h"],
+            "--duration: '100000h' is over a week (168h), the longest soak",  # 1.2 GB in 12 s
+        ),
+    ],
+    ids=lambda v: v[0] if isinstance(v, list) else "",
+)
+def test_sizes_past_what_a_machine_holds_are_bad_options(
+    helpers: Any, command: list[str], line: str
+) -> None:
+    r = run_lunad(helpers, *command)
+    assert r.returncode == 2, r.stderr
+    assert line in r.stderr and "Traceback" not in r.stderr, r.stderr

@@ -5,7 +5,11 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import signal
+import subprocess
+import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -397,3 +401,34 @@ def test_the_summary_tallies_every_miss(capsys: pytest.CaptureFixture[str]) -> N
     assert run_cli(argv) == 0
     assert "2 runs (1 scenarios x 2 worlds x 1 seeds)" in capsys.readouterr().out
     assert run_cli([*argv, "--format", "json"]) == cmd_eval.EXIT_USAGE
+
+
+def test_a_sigterm_stops_eval_and_its_workers(helpers: Any) -> None:
+    """SIGTERM ended ``lunad eval --jobs 2`` by its default action and left its two
+    workers waiting for ever, holding its stdout: a pipe reading it never ended."""
+    p = subprocess.Popen(
+        [*helpers.lunad, "eval", "--seed", "0-40", "--jobs", "2"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        deadline = time.monotonic() + 60
+        kids: list[int] = []
+        while len(kids) < 2 and time.monotonic() < deadline:
+            assert p.poll() is None
+            kids = [
+                int(k)
+                for task in Path(f"/proc/{p.pid}/task").iterdir()
+                for k in (task / "children").read_text().split()
+            ]
+            time.sleep(0.05)
+        assert len(kids) >= 2, "eval started no workers within 60 s"
+        time.sleep(0.5)  # the workers are judging runs
+        p.send_signal(signal.SIGTERM)
+        _, err = p.communicate(timeout=60)  # ends: nothing holds its pipes
+    finally:
+        p.kill()
+    assert p.returncode == 143, err
+    assert "lunad eval: stopped by SIGTERM" in err
+    assert not any(Path(f"/proc/{k}").exists() for k in kids)

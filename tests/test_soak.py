@@ -8,6 +8,7 @@ import errno
 import itertools
 import json
 import os
+import signal
 import subprocess
 import tempfile
 import threading
@@ -470,3 +471,62 @@ def test_soak_bytes_finds_skipped_and_foreign_bytes(tmp_path: Path) -> None:
     assert not bad.complete
     assert bad.skipped == [(0.0, 9)] and bad.unmatched_chunks == 1
     assert byte_check.main([str(tmp_path)]) == 1
+
+
+def _children(pid: int) -> list[int]:
+    """The processes ``pid`` started (its threads' children)."""
+    kids: list[int] = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            kids += [int(k) for k in (task / "children").read_text().split()]
+        except FileNotFoundError:
+            pass
+    return kids
+
+
+def _gone(pids: list[int], timeout_s: float = 20.0) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if not any(Path(f"/proc/{p}").exists() for p in pids):
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def test_a_sigterm_stops_the_soak_its_daemon_and_its_folder(tmp_path: Path, helpers: Any) -> None:
+    """SIGTERM ended ``lunad soak`` by its default action (143) and left its daemon
+    running, re-parented to init, with its temporary folder. It stops as on Ctrl-C:
+    the daemon stopped, the folder removed, exit 143. A second soak on the same
+    ``--keep-logs`` folder meanwhile is refused: two deleted each other's recordings,
+    and each passed its byte check on the other's bytes."""
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    keep = tmp_path / "logs"
+    env = {**os.environ, "TMPDIR": str(tmp)}
+    p = subprocess.Popen(
+        [*helpers.lunad, "soak", "--duration", "60s", "--keep-logs", str(keep)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    try:
+        deadline = time.monotonic() + 60
+        while not (kids := _children(p.pid)) and time.monotonic() < deadline:
+            assert p.poll() is None
+            time.sleep(0.05)
+        assert kids, "the soak started no daemon within 60 s"
+        second = subprocess.run(
+            [*helpers.lunad, "soak", "--duration", "60s", "--keep-logs", str(keep)],
+            capture_output=True, text=True, timeout=60, env=env,
+        )  # fmt: skip
+        assert second.returncode == 2, second.stderr
+        assert f"--keep-logs: {keep} is in use by another lunad soak" in second.stderr
+        p.send_signal(signal.SIGTERM)
+        _, err = p.communicate(timeout=60)
+    finally:
+        p.kill()
+    assert p.returncode == 143, err
+    assert "lunad soak: stopped by SIGTERM" in err
+    assert _gone(kids), f"the soak's daemon {kids} still runs"
+    assert list(tmp.iterdir()) == []

@@ -12,12 +12,18 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import signal
 import tomllib
 from dataclasses import asdict
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from lunad.daemon.cli.arg_types import int_at_least, positive_float
+from lunad.daemon.cli.signals import Interrupts
 from lunad.daemon.errors import EX_CONFIG, EXIT_USAGE, ConfigError
+
+if TYPE_CHECKING:
+    from lunad.filters import FilterConfig
+    from lunad.sim.scenario import Scenario
 
 log = logging.getLogger(__name__)
 
@@ -82,8 +88,10 @@ Comparing two filters: run both on the same seeds, 100 or more of them. On 40 se
 next (docs/filter.md, "Seeds beyond the three").
 
 exit status: 0 done (targets met or not, without --check); 1 a target missed, with
---check; 2 a bad option, or options that do not go together; 78 a bad scenario,
-config file or --set."""
+--check; 2 a bad option (a --set that is not FIELD=VALUE with a number, true or false
+among them), or options that do not go together; 78 a bad scenario, config file, or a
+--set field or value the filter refuses; 128 + the signal's number when SIGINT, SIGTERM
+or SIGHUP stopped it (its worker processes stopped too)."""
 
 
 def _seeds(text: str) -> range:
@@ -120,6 +128,16 @@ def _setting(text: str) -> tuple[str, Any]:
         ) from None
 
 
+def _noise_scale(text: str) -> float:
+    """``--noise-scale``: a positive factor, at most ``NOISE_SCALE_MAX``."""
+    from lunad.sim.physics import NOISE_SCALE_MAX
+
+    value = positive_float(text)
+    if value > NOISE_SCALE_MAX:
+        raise argparse.ArgumentTypeError(f"at most {NOISE_SCALE_MAX:g}, got {text!r}")
+    return value
+
+
 def _run_seconds(text: str) -> float:
     """``--duration``: a positive number of seconds, at most ``MAX_RUN_S``."""
     value = positive_float(text)
@@ -147,7 +165,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--noise-scale",
-        type=positive_float,
+        type=_noise_scale,
         default=1.0,
         metavar="F",
         help="multiply the sensor's noise constants by F (default 1; the filter is not told)",
@@ -213,15 +231,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``lunad eval``; returns the exit code."""
+    import lunad.sim.evaluate  # noqa: F401 (loaded before a stop can raise: see watch.run)
     from lunad.daemon.config import load_config
-    from lunad.sim.evaluate import (
-        WORLDS,
-        Targets,
-        check_targets,
-        evaluate_all,
-        format_summary,
-        format_table,
-    )
     from lunad.sim.scenario import ScenarioError, builtin_scenarios, load_scenario
 
     if args.list:
@@ -259,6 +270,26 @@ def run(args: argparse.Namespace) -> int:
                 MAX_RUN_S,
             )
             return EXIT_CONFIG
+    # SIGTERM's default action ended eval and left its --jobs workers waiting for ever,
+    # holding its stdout; as Ctrl-C, the pool's shutdown stops them
+    interrupts = Interrupts(signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+    try:
+        return _judge(args, scenarios, config)
+    except KeyboardInterrupt:
+        return interrupts.exit_code("lunad eval")
+
+
+def _judge(args: argparse.Namespace, scenarios: list[Scenario], config: FilterConfig) -> int:
+    """Evaluate ``scenarios`` with the filter settings ``config`` and print the verdict."""
+    from lunad.sim.evaluate import (
+        WORLDS,
+        Targets,
+        check_targets,
+        evaluate_all,
+        format_summary,
+        format_table,
+    )
+
     worlds = WORLDS if args.world == "both" else (args.world,)
     seeds = tuple(dict.fromkeys(s for r in args.seed or (range(1),) for s in r))
     runs = len(scenarios) * len(worlds) * len(seeds)

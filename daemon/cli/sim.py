@@ -70,16 +70,15 @@ def add_parser(sub: Any) -> None:
     )
     p.add_argument("--scenario", metavar="NAME|FILE", help="time-varying truth; stops at its end")
     p.add_argument("--loop", action="store_true", help="repeat the scenario instead of stopping")
-    p.add_argument("--distance", type=float, default=2.0, metavar="M", help="true distance, m")
+    p.add_argument("--distance", type=float, metavar="M", help="true distance, m (default 2)")
     p.add_argument(
         "--reflectivity",
         type=float,
-        default=0.9,
         metavar="R",
-        help="0..1, up to 10 for a retroreflector",
+        help="0..1, up to 10 for a retroreflector (default 0.9)",
     )
-    p.add_argument("--angle", type=float, default=0.0, metavar="DEG", help="incidence angle")
-    p.add_argument("--lux", type=float, default=0.0, metavar="L", help="ambient light, lux")
+    p.add_argument("--angle", type=float, metavar="DEG", help="incidence angle (default 0)")
+    p.add_argument("--lux", type=float, metavar="L", help="ambient light, lux (default 0)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument(
         "--garbage-rate",
@@ -107,6 +106,8 @@ TRUTH_FLAGS = {
     "lux": "lux",
 }
 """Each truth flag and the scenario field whose range (``FIELD_LIMITS``) it shares."""
+TRUTH_DEFAULTS = {"distance": 2.0, "reflectivity": 0.9, "angle": 0.0, "lux": 0.0}
+"""The still target without ``--scenario`` (dark: lux 0)."""
 
 
 def _bad_number_flag(args: argparse.Namespace) -> str | None:
@@ -115,18 +116,25 @@ def _bad_number_flag(args: argparse.Namespace) -> str | None:
     A NaN or infinite truth reached the device thread and killed it (the sim then
     ran mute and exited 0), so every number is checked here, before anything starts.
     """
+    from lunad.sim.physics import NOISE_SCALE_MAX
     from lunad.sim.scenario import FIELD_LIMITS
 
     for flag, key in TRUTH_FLAGS.items():
         value = getattr(args, flag)
+        if value is None:
+            continue
+        if args.scenario:  # its truth was taken and the flag dropped without a word
+            return f"--{flag}: --scenario sets the truth; give one or the other"
         lo, hi = FIELD_LIMITS[key]
         if not lo <= value <= hi:
             return f"--{flag} must be within {lo:g}..{hi:g}, got {value}"
     for name in ("garbage_rate", "corrupt_rate"):
         if not 0.0 <= getattr(args, name) <= 1.0:
             return f"--{name.replace('_', '-')} must be in 0..1"
-    if not (math.isfinite(args.noise_scale) and args.noise_scale > 0):
-        return f"--noise-scale must be positive and finite, got {args.noise_scale}"
+    if not 0 < args.noise_scale <= NOISE_SCALE_MAX:  # NaN fails too
+        return (
+            f"--noise-scale must be above 0 and at most {NOISE_SCALE_MAX:g}, got {args.noise_scale}"
+        )
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration >= 0):
         return f"--duration must be a finite number of seconds >= 0, got {args.duration}"
     return None
@@ -178,7 +186,11 @@ def run(args: argparse.Namespace) -> int:
         if duration is None and not args.loop:
             duration = length
     else:
-        truth = Truth(args.distance, args.reflectivity, args.angle, args.lux)
+        given = {
+            f: d if getattr(args, f) is None else getattr(args, f)
+            for f, d in TRUTH_DEFAULTS.items()
+        }
+        truth = Truth(given["distance"], given["reflectivity"], given["angle"], given["lux"])
     done = threading.Event()
     # SIGHUP too (its terminal closed, an SSH session ended): killed by it, the sim left
     # its link to a pty number the next pty takes, and a daemon opening the link then

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import fcntl
+import signal
 import sys
-import tempfile
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 DESCRIPTION = """\
 Run the virtual sensor and `lunad serve` (a real subprocess, as systemd would) for a
@@ -20,7 +21,9 @@ each fault's recovery time, RSS and open files over time, CPU per frame, and the
 verdict. PASS: no valid frame that reached the daemon is missing from the stream
 (a slow subscriber's own losses are counted apart), every fault recovered within
 5 s, RSS growth under 1 MiB/h after warm-up, no file-descriptor growth, and the
-daemon never exited. Exit code 0 only on PASS, 1 on FAIL, 2 on a bad option.
+daemon never exited. Exit code 0 only on PASS, 1 on FAIL, 2 on a bad option;
+stopped by SIGINT, SIGTERM or SIGHUP, it stops the daemon and the sensor, removes its
+temporary folder and exits 128 + the signal's number (130, 143, 129).
 """
 
 EPILOG = """\
@@ -31,7 +34,7 @@ examples:
   lunad soak --duration 10m --format json > soak.json
   lunad soak --duration 60s --rate 250       # the same faults on a 250 Hz stream
 
-Durations: 60s, 10m, 1h, 24h, 1h30m or plain seconds (at least 50 s).
+Durations: 60s, 10m, 1h, 24h, 1h30m or plain seconds (at least 50 s, at most 168h).
 See docs/soak.md for what each fault does and how frames are accounted.
 """
 
@@ -61,22 +64,40 @@ def add_parser(sub: Any) -> None:
     p.set_defaults(func=run)
 
 
-def _check_keep_logs(path: Path) -> None:
-    """Create ``path`` and write a file in it now, so that a folder which cannot hold the
-    logs is a bad option before anything starts, not a failure after the soak.
+KEEP_LOGS_LOCK = ".lunad-soak.lock"
+"""The file in a ``--keep-logs`` folder a soak holds a lock on while it runs."""
+
+
+def _check_keep_logs(path: Path) -> IO[str]:
+    """Create ``path`` and lock it for this soak now, so that a folder which cannot hold
+    the logs, or that another soak writes to, is a bad option before anything starts.
+    Two soaks on one folder deleted each other's recordings, and each passed its byte
+    check on the other's bytes. Returns the lock's file: keep it open while the soak
+    runs (the lock goes with the process).
 
     Raises:
-        OSError: it cannot be created (a file in the way) or written.
+        OSError: it cannot be created (a file in the way) or written, or another soak
+            holds it (``BlockingIOError``).
     """
     path.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryFile(dir=path):
-        pass
+    lock = open(path / KEEP_LOGS_LOCK, "w")
+    try:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        lock.close()
+        raise BlockingIOError(f"{path} is in use by another lunad soak") from None
+    except OSError:
+        lock.close()
+        raise
+    return lock
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the soak and print the report; 0 on PASS, 1 on FAIL, 2 on a bad option."""
+    """Run the soak and print the report; 0 on PASS, 1 on FAIL, 2 on a bad option,
+    128 + the signal's number when one stopped it."""
     import json
 
+    from lunad.daemon.cli.signals import Interrupts
     from lunad.daemon.tools import soak
     from lunad.protocol.commands import FRAME_RATES_HZ
 
@@ -92,9 +113,10 @@ def run(args: argparse.Namespace) -> int:
         )
         return 2
     keep_logs = getattr(args, "keep_logs", None)
+    lock = None  # on the --keep-logs folder, held while the soak runs
     if keep_logs:
         try:
-            _check_keep_logs(Path(keep_logs))
+            lock = _check_keep_logs(Path(keep_logs))
         except OSError as exc:
             print(f"lunad soak: --keep-logs: {exc}", file=sys.stderr)
             return 2
@@ -105,14 +127,24 @@ def run(args: argparse.Namespace) -> int:
     def progress(line: str) -> None:
         print(line, file=sys.stderr, flush=True)
 
-    report = soak.Soak(
-        duration,
-        seed=args.seed,
-        rate_hz=args.rate,
-        progress=progress if getattr(args, "progress", False) else None,
-        keep_logs=keep_logs,
-        schedule=schedule,
-    ).run()
+    # SIGTERM's default action ended soak and left its daemon running, with the
+    # temporary folder; as Ctrl-C, every finally stops what it started
+    interrupts = Interrupts(signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+    try:
+        report = soak.Soak(
+            duration,
+            seed=args.seed,
+            rate_hz=args.rate,
+            progress=progress if getattr(args, "progress", False) else None,
+            keep_logs=keep_logs,
+            schedule=schedule,
+            held=interrupts.held,
+        ).run()
+    except KeyboardInterrupt:
+        return interrupts.exit_code("lunad soak")
+    finally:
+        if lock is not None:
+            lock.close()
     if fmt == "json":
         print(json.dumps(report.to_json(), indent=1))
     else:

@@ -58,6 +58,19 @@ on the calibrated profile's exact expectation (no readings drawn, its own fixed 
 its starting points) and plots nothing."""
 
 _positive_int = int_at_least(1, "a positive integer")
+MAX_READINGS = 100_000
+"""Most readings per cell (our bound): 100 times the paper's 1000; its sweep peaks at
+105 MB (``/usr/bin/time lunad sweep --readings 100000 --profile paper``), where 10^9
+grew past 5 GB in 15 s."""
+
+
+def _readings(text: str) -> int:
+    """``--readings``: 1 to ``MAX_READINGS``."""
+    value = _positive_int(text)
+    if value > MAX_READINGS:
+        raise argparse.ArgumentTypeError(f"at most {MAX_READINGS}, got {text!r}")
+    return value
+
 _seed = int_at_least(0, "a non-negative integer")
 """numpy.random.default_rng refuses a negative seed."""
 
@@ -89,7 +102,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--readings",
-        type=_positive_int,
+        type=_readings,
         metavar="N",
         help="readings per cell (default: 1000, as in the paper)",
     )

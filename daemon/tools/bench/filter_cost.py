@@ -297,7 +297,7 @@ def format(cost: FilterCost) -> str:
         f"bytecodes a frame (Python {cost.python}, first {cost.traced_frames} frames): "
         f"old {cost.old_bytecodes:.1f}, today {cost.new_bytecodes:.1f} "
         f"({cost.bytecode_ratio:.2f}x)",
-        f"today / old, median of rounds: {cost.ratio:.2f}x   <= {RATIO_MAX:g}x: {verdict}",
+        f"today / old, median of rounds: {cost.ratio:.3f}x   <= {RATIO_MAX:g}x: {verdict}",
     ]
     return "\n".join(lines)
 

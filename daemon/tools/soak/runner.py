@@ -33,6 +33,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable
+from contextlib import AbstractContextManager
 from pathlib import Path
 
 from lunad.daemon.sources.base import Chunk
@@ -49,6 +50,7 @@ from lunad.daemon.tools.soak.subscribers import SENSOR, MainSubscriber, SlowSubs
 from lunad.sim.pty_device import DeviceError, PtyDevice
 
 DRAIN_TIMEOUT_S = 5.0
+LUNAD_SERVE = (sys.executable, "-m", "lunad.daemon.cli", "serve")
 
 
 class DaemonDied(Exception):
@@ -67,6 +69,7 @@ class Soak(FaultActions):
         keep_logs: Path | str | None = None,
         schedule: list[Fault] | None = None,
         sample_s: float | None = None,
+        held: Callable[[], AbstractContextManager[None]] = contextlib.nullcontext,
     ) -> None:
         self.duration_s = duration_s
         self.seed = seed
@@ -90,6 +93,9 @@ class Soak(FaultActions):
         self._lag_max = 0.0  # how late the soak's own ticker woke: its scheduling lag
         self._sensor_rec: Recorder | None = None  # with keep_logs: the sensor's bytes
         self._lag_window_max = 0.0
+        self._held = held
+        """Holds a stop (``Interrupts.held``) while a process or folder is made, until
+        whatever removes it is in place."""
 
     # -- helpers --
 
@@ -209,11 +215,14 @@ class Soak(FaultActions):
         The temporary folder (pty link, socket, config, log) is removed however this
         ends, a failed start included.
         """
-        self.work = Path(tempfile.mkdtemp(prefix="lunad-soak-"))
+        made: Path | None = None
         try:
+            with self._held():
+                made = self.work = Path(tempfile.mkdtemp(prefix="lunad-soak-"))
             return self._run()
         finally:
-            shutil.rmtree(self.work, ignore_errors=True)
+            if made is not None:
+                shutil.rmtree(made, ignore_errors=True)
 
     def _run(self) -> SoakReport:
         self.link = self.work / "tfluna"
@@ -246,12 +255,14 @@ class Soak(FaultActions):
             self.sub.start()
             started.callback(self.sub.close)
             log_file = started.enter_context(open(self.log_path, "wb"))
-            self.proc = subprocess.Popen(
-                [sys.executable, "-m", "lunad.daemon.cli", "serve", "--config", str(self.config)],
-                stdout=log_file,
-                stderr=subprocess.STDOUT,
-                env={**os.environ, "PYTHONUNBUFFERED": "1"},
-            )
+            with self._held():
+                self.proc = subprocess.Popen(
+                    [*LUNAD_SERVE, "--config", str(self.config)],
+                    stdout=log_file,
+                    stderr=subprocess.STDOUT,
+                    env={**os.environ, "PYTHONUNBUFFERED": "1"},
+                )
+                started.callback(self._stop_daemon)
             started.pop_all()  # from here the finally below closes them
         rep.daemon_pid = self.proc.pid
         sampler = threading.Thread(target=self._sampler, name="soak-sampler", daemon=True)

@@ -42,11 +42,16 @@ _DURATION_RE = re.compile(r"(\d+(?:\.\d+)?)([smhd]?)")
 _UNIT_S = {"": 1.0, "s": 1.0, "m": 60.0, "h": 3600.0, "d": 86400.0}
 
 
+MAX_DURATION_S = 7 * 86400.0
+"""Longest soak, seconds (our bound): its schedule is built up front, 43,000 faults and
+50 MB for a week; a longer soak is a series of them, each with its own seed."""
+
+
 def parse_duration(text: str) -> float:
     """Seconds in ``60s``, ``10m``, ``1h``, ``24h``, ``1h30m`` or plain ``90``.
 
     Raises:
-        ValueError: anything else, or zero.
+        ValueError: anything else, zero, or over ``MAX_DURATION_S``.
     """
     s = text.strip().lower()
     pos = 0
@@ -62,6 +67,8 @@ def parse_duration(text: str) -> float:
         unitless = unitless or not m.group(2)
     if not s or pos != len(s) or total <= 0 or (unitless and parts > 1):
         raise ValueError(f"not a duration: {text!r} (use e.g. 60s, 10m, 1h, 24h or seconds)")
+    if total > MAX_DURATION_S:
+        raise ValueError(f"{text!r} is over a week (168h), the longest soak; run a series")
     return total
 
 
