@@ -102,7 +102,7 @@ def test_head_of_the_checkout_through_the_cli(capsys: Any, monkeypatch: pytest.M
     if "uncommitted changes" not in lines[0]:  # someone may be editing filters/ right now
         assert old == new
     assert re.fullmatch(
-        r"today / old, median of rounds: \d+\.\d\dx   <= 1\.2x: (met|MISSED)", lines[7]
+        r"today / old, median of rounds: \d+\.\d{3}x   <= 1\.2x: (met|MISSED)", lines[7]
     )
     assert len(lines) == 8
 

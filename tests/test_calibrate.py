@@ -3,12 +3,14 @@ the config."""
 
 from __future__ import annotations
 
+import errno
 import os
 import random
 import re
 import signal
 import stat
 import subprocess
+import tempfile
 import time
 import tomllib
 from collections.abc import Callable
@@ -418,6 +420,36 @@ def test_write_refuses_a_layout_it_cannot_edit(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="by hand"):
         write_filter_values(f, {"amp_ref": 1500.0})
     assert f.read_text() == before and os.listdir(tmp_path) == ["a.toml"]
+
+
+def test_write_keeps_a_files_line_ends(tmp_path: Path) -> None:
+    """A config file written on Windows (CRLF) came back with LF line ends, every line
+    changed in a diff."""
+    f = tmp_path / "crlf.toml"
+    f.write_bytes(b'[sensor]\r\nname = "x"\r\n\r\n[filter]\r\namp_ref = 2000.0\r\n')
+    write_filter_values(f, {"amp_ref": 1500.0, "sigma0_m": 0.004})
+    assert f.read_bytes() == (
+        b'[sensor]\r\nname = "x"\r\n\r\n[filter]\r\namp_ref = 1500.0\r\nsigma0_m = 0.004\r\n'
+    )
+
+
+def test_write_where_no_file_can_be_made_names_the_config(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """On a read-only card the error named the temporary file beside the config
+    (``.c.toml.1v46ecgx``), a name the user never gave. A test cannot mount a read-only
+    card, and root writes in a read-only folder: the kernel's answer is given here."""
+    f = tmp_path / "c.toml"
+    f.write_text("[filter]\namp_ref = 2000.0\n")
+
+    def read_only(dir: str, prefix: str) -> tuple[int, str]:
+        raise OSError(errno.EROFS, "Read-only file system", f"{dir}/{prefix}1v46ecgx")
+
+    monkeypatch.setattr(tempfile, "mkstemp", read_only)
+    with pytest.raises(OSError) as info:
+        write_filter_values(f, {"amp_ref": 1500.0})
+    assert str(info.value) == f"[Errno 30] cannot write {f}: Read-only file system"
+    assert f.read_text() == "[filter]\namp_ref = 2000.0\n"
 
 
 def test_write_keeps_the_file_mode(tmp_path: Path) -> None:

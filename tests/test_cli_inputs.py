@@ -134,19 +134,15 @@ def test_sim_scenario_rate_is_named_as_the_scenario_field(tmp_path: Path, helper
 
 
 def test_sim_exits_non_zero_when_the_device_thread_dies(tmp_path: Path, helpers: Any) -> None:
-    """A reading that overflows (noise scaled by 1e308) kills the device thread; the sim
-    used to stay up mute and exit 0 at the end of --duration."""
+    """A device thread that dies (here its --truth-out is a full disk, /dev/full) used
+    to leave the sim up, mute, to exit 0 at the end of --duration."""
     link = tmp_path / "tfluna"
     r = run_lunad(
-        helpers,
-        "sim",
-        *("--noise-scale", "1e308", "--lux", "200000", "--reflectivity", "0.06"),
-        *("--duration", "30", "--link", str(link)),
+        helpers, "sim", "--truth-out", "/dev/full", "--duration", "30", "--link", str(link)
     )
     assert r.returncode == 1, r.stderr
     assert r.stderr == (
-        "lunad sim: the virtual sensor stopped: "
-        "OverflowError: cannot convert float infinity to integer\n"
+        "lunad sim: the virtual sensor stopped: OSError: [Errno 28] No space left on device\n"
     )
     assert not link.exists()
 

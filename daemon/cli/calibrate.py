@@ -71,7 +71,8 @@ not be measured (amp_ref is still reported and written). Exit 69: the port is in
 by another process, usually the daemon (`sudo systemctl stop lunad@NAME` first; the
 message names the holder). Exit 78: a flag out of its range, or the config file the
 daemon would read after --write refuses a figure (one out of range: a wrong
---reflectivity, say) or is refused already; --write then writes nothing.
+--reflectivity, say), is refused already, or cannot be written (a read-only card);
+--write then writes nothing.
 """
 
 EPILOG = """\
@@ -344,9 +345,13 @@ def write_filter_values(
     """
     target = path.resolve()
     old = target.stat() if target.exists() else None
-    text = target.read_text(encoding="utf-8") if old is not None else ""
+    text = ""
+    if old is not None:
+        with open(target, encoding="utf-8", newline="") as f:  # line ends as they are
+            text = f.read()
     written = {key: _toml_float(key, value) for key, value in values.items()}
     todo = dict(written)
+    eol = "\r\n" if "\r\n" in text else "\n"  # a file written on Windows keeps its ends
     lines = text.splitlines()
     section: dict[str, Any] | None = None
     filter_end: int | None = None  # index after the [filter] table's last setting
@@ -369,7 +374,7 @@ def write_filter_values(
         lines += ["", "[filter]", *new]
     else:
         lines[filter_end:filter_end] = new
-    new_text = "\n".join(lines) + "\n"
+    new_text = eol.join(lines) + eol
     try:
         table = tomllib.loads(new_text)["filter"]
         placed = all(table[key] == float(value) for key, value in written.items())
@@ -387,9 +392,12 @@ def write_filter_values(
         umask = os.umask(0)
         os.umask(umask)
         mode = 0o666 & ~umask
-    fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.")
     try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
+        fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.")
+    except OSError as exc:  # its message named no file of the user's
+        raise OSError(exc.errno, f"cannot write {target}: {exc.strerror}") from None
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as f:
             if old is not None and os.geteuid() == 0:
                 os.fchown(f.fileno(), old.st_uid, old.st_gid)
             os.fchmod(f.fileno(), mode)
