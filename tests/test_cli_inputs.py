@@ -276,6 +276,18 @@ def test_record_says_once_that_its_device_is_absent(tmp_path: Path, helpers: Any
     assert len(said) == 1 and "retrying every 2.0 s at most" in said[0], r.stderr
 
 
+def _sim_up(helpers: Any, link: Path) -> subprocess.Popen[str]:
+    """``lunad sim --link link``, once it says it is up (its link made)."""
+    p = subprocess.Popen(
+        [*helpers.lunad, "sim", "--link", str(link)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert p.stdout is not None and "virtual TF-Luna on" in p.stdout.readline()
+    return p
+
+
 @pytest.mark.parametrize("sig", [signal.SIGHUP, signal.SIGTERM, signal.SIGINT], ids=str)
 def test_sim_removes_its_link_on_a_hangup_as_on_a_stop(
     tmp_path: Path, helpers: Any, sig: signal.Signals
@@ -284,15 +296,8 @@ def test_sim_removes_its_link_on_a_hangup_as_on_a_stop(
     next pty takes: a daemon opening the link read another sim. It stops as on SIGTERM:
     the link goes, the summary is printed, exit 0."""
     link = tmp_path / "tfluna"
-    p = subprocess.Popen(
-        [*helpers.lunad, "sim", "--link", str(link)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
+    p = _sim_up(helpers, link)
     try:
-        assert p.stdout is not None
-        assert "virtual TF-Luna on" in p.stdout.readline()  # up, its link made
         assert link.is_symlink()
         p.send_signal(sig)
         out, err = p.communicate(timeout=30)
@@ -351,14 +356,8 @@ def test_a_second_stop_while_the_sim_stops_is_ignored(tmp_path: Path, helpers: A
     first has stopped it."""
     link = tmp_path / "tfluna"
     for _ in range(3):
-        p = subprocess.Popen(
-            [*helpers.lunad, "sim", "--link", str(link)],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
+        p = _sim_up(helpers, link)
         try:
-            assert p.stdout is not None and "virtual TF-Luna on" in p.stdout.readline()
             p.send_signal(signal.SIGINT)
             for _ in range(20):
                 time.sleep(0.005)

@@ -32,10 +32,13 @@ def ranges_until_quiet(sub: Subscriber, quiet_s: float = 1.0) -> list[RangeMessa
 
 
 def until_stopped(
-    endpoint: str, timeout_s: float = 20.0
+    endpoint: str,
+    timeout_s: float = 20.0,
+    on_range: Callable[[list[RangeMessage]], None] | None = None,
 ) -> tuple[list[RangeMessage], HealthMessage | None]:
     """Every range message from ``endpoint`` until a ``stopped`` health message (or
-    ``timeout_s``), and the last health message."""
+    ``timeout_s``), and the last health message; ``on_range`` is called with the range
+    messages so far at each one."""
     ranges: list[RangeMessage] = []
     last: HealthMessage | None = None
     with Subscriber(endpoint) as sub:
@@ -44,6 +47,8 @@ def until_stopped(
             msg = sub.recv(timeout_s=1.0)
             if isinstance(msg, RangeMessage):
                 ranges.append(msg)
+                if on_range is not None:
+                    on_range(ranges)
             elif isinstance(msg, HealthMessage):
                 last = msg
     return ranges, last
@@ -92,19 +97,14 @@ def test_a_sighup_that_changes_only_the_speed_goes_on_where_the_replay_is(
     cfg = tmp_path / "replay.toml"
     cfg.write_text(f'[source]\nkind = "replay"\npath = "{rec}"\nspeed = 1.0\n')
     d = start_daemon("--config", str(cfg), "--publish", endpoint)
-    ranges: list[RangeMessage] = []
-    last: HealthMessage | None = None
-    with Subscriber(endpoint) as sub:
-        deadline = time.monotonic() + 30
-        while time.monotonic() < deadline and (last is None or last.state != "stopped"):
-            msg = sub.recv(timeout_s=1.0)
-            if isinstance(msg, RangeMessage):
-                ranges.append(msg)
-                if len(ranges) == 100:  # 0.4 s in: four times as fast from here
-                    cfg.write_text(cfg.read_text().replace("speed = 1.0", "speed = 4.0"))
-                    d.proc.send_signal(signal.SIGHUP)
-            elif isinstance(msg, HealthMessage):
-                last = msg
+
+    def faster(ranges: list[RangeMessage]) -> None:
+        if len(ranges) == 100:  # 0.4 s in: four times as fast from here
+            cfg.write_text(cfg.read_text().replace("speed = 1.0", "speed = 4.0"))
+            d.proc.send_signal(signal.SIGHUP)
+
+    ranges, last = until_stopped(endpoint, 30.0, faster)
+    assert last is not None and last.state == "stopped", d.log
     assert d.proc.wait(timeout=15) == 0, d.log
     assert f"SIGHUP: replay {rec} at 4x" in d.log and "changed: source" in d.log, d.log
     assert [m.seq for m in ranges] == list(range(2000)), d.log
