@@ -394,7 +394,7 @@ def write_filter_values(
         mode = 0o666 & ~umask
     try:
         fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.")
-    except OSError as exc:  # its message named no file of the user's
+    except OSError as exc:  # its message names the temporary file, not the user's
         raise OSError(exc.errno, f"cannot write {target}: {exc.strerror}") from None
     try:
         with os.fdopen(fd, "w", encoding="utf-8", newline="") as f:

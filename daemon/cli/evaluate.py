@@ -270,8 +270,8 @@ def run(args: argparse.Namespace) -> int:
                 MAX_RUN_S,
             )
             return EXIT_CONFIG
-    # SIGTERM's default action ended eval and left its --jobs workers waiting for ever,
-    # holding its stdout; as Ctrl-C, the pool's shutdown stops them
+    # Each stops it as Ctrl-C does, and the pool's shutdown stops the --jobs workers:
+    # by SIGTERM's default action they would wait for ever, holding eval's stdout
     interrupts = Interrupts(signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
     try:
         return _judge(args, scenarios, config)

@@ -123,7 +123,7 @@ def _bad_number_flag(args: argparse.Namespace) -> str | None:
         value = getattr(args, flag)
         if value is None:
             continue
-        if args.scenario:  # its truth was taken and the flag dropped without a word
+        if args.scenario:  # the scenario's truth would override the flag without a word
             return f"--{flag}: --scenario sets the truth; give one or the other"
         lo, hi = FIELD_LIMITS[key]
         if not lo <= value <= hi:

@@ -127,8 +127,8 @@ def run(args: argparse.Namespace) -> int:
     def progress(line: str) -> None:
         print(line, file=sys.stderr, flush=True)
 
-    # SIGTERM's default action ended soak and left its daemon running, with the
-    # temporary folder; as Ctrl-C, every finally stops what it started
+    # Each stops it as Ctrl-C does, and every finally stops what it started: by
+    # SIGTERM's default action its daemon would run on, with its temporary folder
     interrupts = Interrupts(signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
     try:
         report = soak.Soak(

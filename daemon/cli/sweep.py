@@ -71,6 +71,7 @@ def _readings(text: str) -> int:
         raise argparse.ArgumentTypeError(f"at most {MAX_READINGS}, got {text!r}")
     return value
 
+
 _seed = int_at_least(0, "a non-negative integer")
 """numpy.random.default_rng refuses a negative seed."""
 
