@@ -407,3 +407,26 @@ def test_sizes_past_what_a_machine_holds_are_bad_options(
     r = run_lunad(helpers, *command)
     assert r.returncode == 2, r.stderr
     assert line in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+
+def test_a_second_sim_on_a_running_sims_link_is_refused(tmp_path: Path, helpers: Any) -> None:
+    """A second ``lunad sim`` on the same --link took the link over without a word, and
+    removed it when it ended: the first sim, still running, had no link left."""
+    link = tmp_path / "tfluna"
+    first = _sim_up(helpers, link)
+    try:
+        target = os.readlink(link)
+        r = run_lunad(helpers, "sim", "--link", str(link), "--duration", "1")
+        assert r.returncode == 2, r.stderr
+        assert r.stderr == (
+            f"lunad sim: --link: {link} points at {target}, a pty still open (another "
+            "lunad sim?); stop that one, give another --link, or remove the link\n"
+        )
+        assert os.readlink(link) == target and first.poll() is None
+        first.send_signal(signal.SIGTERM)
+        first.communicate(timeout=30)
+    finally:
+        first.kill()
+    assert first.returncode == 0 and not os.path.lexists(link)
+    r = run_lunad(helpers, "sim", "--link", str(link), "--duration", "0.5")  # free again
+    assert r.returncode == 0, r.stderr

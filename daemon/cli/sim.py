@@ -5,10 +5,12 @@ from __future__ import annotations
 import argparse
 import contextlib
 import math
+import os
 import signal
 import sys
 import threading
 from collections.abc import Callable
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -140,6 +142,20 @@ def _bad_number_flag(args: argparse.Namespace) -> str | None:
     return None
 
 
+def _link_in_use(link: Path) -> str | None:
+    """The pty ``link`` points at while that pty is open, else None.
+
+    A sim's pty lives while the sim holds it, so a link to one that exists is another
+    sim's (or a program's that took the number over after a sim was killed): replacing
+    it took the link from a running sim, whose readers then lost it when this one ended.
+    """
+    try:
+        target = os.readlink(link)
+    except OSError:  # no link there (or not a link: start() refuses that)
+        return None
+    return target if target.startswith("/dev/pts/") and os.path.exists(target) else None
+
+
 def run(args: argparse.Namespace) -> int:
     """Stream until SIGINT/SIGTERM or ``--duration``.
 
@@ -223,6 +239,14 @@ def run(args: argparse.Namespace) -> int:
             on_error=lambda _exc: done.set(),
             view=view,
         )
+        held = _link_in_use(dev.link)
+        if held is not None:
+            print(
+                f"lunad sim: --link: {dev.link} points at {held}, a pty still open (another "
+                "lunad sim?); stop that one, give another --link, or remove the link",
+                file=sys.stderr,
+            )
+            return 2
         try:
             dev.start()
         except (OSError, ValueError) as exc:
