@@ -17,7 +17,7 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from lunad.daemon.config import Config, ConfigError, load_config
+from lunad.daemon.config import Config, ConfigError, SourceSection, load_config
 from lunad.daemon.errors import EX_UNAVAILABLE, PublishError
 from lunad.daemon.health import Health
 from lunad.daemon.notify import Notifier
@@ -30,11 +30,17 @@ from lunad.daemon.sources.replay import ReplaySource, check_replay
 log = logging.getLogger("lunad.serve")
 
 
-def _section(cfg: Config, name: str) -> object:
-    """``cfg``'s section (or setting) ``name``, as a reload compares it: [source] without
-    ``rate_hz``, which is [sensor]'s ``frame_rate_hz`` copied."""
-    section = getattr(cfg, name)
-    return section.model_copy(update={"rate_hz": 0}) if name == "source" else section
+def _same_but(new: SourceSection, old: SourceSection, *fields: str) -> bool:
+    """Whether the [source] ``new`` is ``old`` but for ``fields``."""
+    return new.model_copy(update={f: getattr(old, f) for f in fields}) == old
+
+
+def _changed(new: Config, old: Config, name: str) -> bool:
+    """Whether a reload changes the section (or setting) ``name``; [source]'s
+    ``rate_hz`` is [sensor]'s ``frame_rate_hz`` copied, and counts there."""
+    if name == "source":
+        return not _same_but(new.source, old.source, "rate_hz")
+    return bool(getattr(new, name) != getattr(old, name))
 
 
 def _same_file(a: str | os.PathLike[str], b: str | os.PathLike[str]) -> bool:
@@ -92,7 +98,7 @@ class Reloading:
         changed = [
             name
             for name in ("sensor", "source", "publish", "filter", "log_level")
-            if _section(new, name) != _section(old, name)
+            if _changed(new, old, name)
         ]
         recorder = self.recorder
         wanted = new.source.record
@@ -128,15 +134,13 @@ class Reloading:
         self.health.filter_config = new.filter.to_filter_config()
         self.health.noise_configured = new.filter.sets_noise_model
         self.health.sensor = new.sensor.name
-        kept: dict[str, object] = {"record": old.source.record}
-        same_port = new.source.model_copy(update=kept) == old.source
+        same_port = _same_but(new.source, old.source, "record")
         src = self._source
-        kept["speed"] = old.source.speed
         if (
             not same_port
             and isinstance(src, ReplaySource)
             and new.sensor == old.sensor
-            and new.source.model_copy(update=kept) == old.source
+            and _same_but(new.source, old.source, "record", "speed")
         ):
             src.set_speed(new.source.speed)  # the replay goes on from where it is
             log.info("SIGHUP: %s", src)

@@ -236,18 +236,16 @@ class Subscriber:
             except (ValueError, ValidationError):
                 self.bad_messages += 1
                 continue
+            now = made = time.monotonic()
             if isinstance(msg, RangeMessage):
                 if not self._track(msg):
                     self.duplicates += 1
                     continue
                 if msg.cached:
                     msg = self._stale_if_old(msg)
+                    made -= msg.age_ms / 1000
             if health:
                 self._last_health[topic] = payload
-            now = time.monotonic()
-            made = now
-            if isinstance(msg, RangeMessage) and msg.cached:
-                made -= msg.age_ms / 1000
             self._t_last = self._quiet_from = made
             self._received_any = True
             self._arrivals.append(now)

@@ -652,6 +652,18 @@ def check_speed(speed: float | None) -> float | None:
     return speed
 
 
+def _paced(speed: float | None) -> float:
+    """``speed`` for a ``Pacer``: a usable factor, not None (as fast as possible).
+
+    Raises:
+        ValueError: None, zero, negative, infinite or NaN.
+    """
+    if check_speed(speed) is None:
+        raise ValueError("Pacer needs a speed; use no pacing for as-fast-as-possible")
+    assert speed is not None
+    return speed
+
+
 class Pacer:
     """Turns recorded times into the monotonic clock times at which to release them.
 
@@ -673,8 +685,7 @@ class Pacer:
         max_gap_s: float | None = 1.0,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
-        if check_speed(speed) is None:
-            raise ValueError("Pacer needs a speed; use no pacing for as-fast-as-possible")
+        _paced(speed)
         if max_gap_s is not None and max_gap_s < 0:
             raise ValueError(f"max_gap_s must be >= 0, got {max_gap_s}")
         self.speed = speed
@@ -715,8 +726,7 @@ class Pacer:
         Raises:
             ValueError: ``speed`` is zero, negative or not finite.
         """
-        if check_speed(speed) is None:
-            raise ValueError("Pacer needs a speed; use no pacing for as-fast-as-possible")
+        _paced(speed)
         if self._start_s is not None:
             now = self._clock()
             played_ns = min(self._offset_ns, max(0.0, (now - self._start_s) * 1e9 * self.speed))

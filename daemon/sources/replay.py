@@ -59,10 +59,11 @@ class ReplaySource(Source):
         max_gap_s: float | None = MAX_GAP_S,
     ) -> None:
         self.path = Path(path)
-        self.speed = check_speed(speed)
         self.ignored_writes = 0
         self._max_gap_s = max_gap_s
-        self._pacer = None if speed is None else Pacer(speed, max_gap_s)
+        self._pacer: Pacer | None = None
+        self._due_s: float | None = None
+        self.set_speed(speed)
         try:
             self._replay = Replay(self.path)
         except OSError as exc:
@@ -87,7 +88,6 @@ class ReplaySource(Source):
             raise SourceOpenError(f"cannot read recording {self.path}: {exc}") from exc
         self._wakeup = Wakeup()
         self._closed = False
-        self._due_s: float | None = None
 
     @classmethod
     def from_config(cls, cfg: SourceSection) -> ReplaySource:
