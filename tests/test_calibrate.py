@@ -642,23 +642,26 @@ def test_a_typo_in_lux_or_angle_leaves_the_config_as_it_was(
     assert load_config(cfg).filter.to_filter_config().amp_ref == 1990.0
 
 
+@pytest.mark.parametrize("too_small", [1e6, 9e299])
 def test_a_figure_the_daemon_would_refuse_is_not_written(
-    device: Callable[..., PtyDevice], tmp_path: Path, helpers: Any
+    device: Callable[..., PtyDevice], tmp_path: Path, helpers: Any, too_small: float
 ) -> None:
     """A reflectivity typed 1e6 times too small gives amp_ref = 1.8e9, above what the
     config takes (1e9): it used to be written, and the file then refused. Now nothing is
-    written, and the message names the key, its value and the flag to check."""
+    written, and the message names the key, its value and the flag to check. Typed
+    1e-300, the amp_ref reported is a figure of four digits, not of 300."""
     truth = Truth(distance_m=2.0, reflectivity=0.9, angle_deg=0.0, lux=0.0)
     dev = device(rate_hz=250, output_enabled=False, model=RealisticSensor(), truth=truth)
     cfg = config_dir(tmp_path) / "front.toml"
     cfg.write_text(CALIBRATED)
     before = cfg.read_bytes()
-    typo = Truth(distance_m=2.0, reflectivity=0.0000009, angle_deg=0.0, lux=0.0)
+    typo = Truth(distance_m=2.0, reflectivity=0.9 / too_small, angle_deg=0.0, lux=0.0)
     argv = calibrate_argv(helpers, dev, typo, "--config", str(cfg), "--write", seconds="1")
     r = subprocess.run(argv, capture_output=True, text=True, timeout=30)
     assert r.returncode == 78, r.stderr
     amp_ref, _ = figure(r.stdout, "amp_ref")  # still reported, for the user to see
-    assert amp_ref == pytest.approx(AMP_REF * 1e6, rel=0.03)
+    assert amp_ref == pytest.approx(AMP_REF * too_small, rel=0.03)
+    assert re.search(r"^amp_ref = \S{1,12} ± \S{1,12} ", r.stdout, re.MULTILINE), r.stdout
     assert r.stderr.startswith(
         "lunad calibrate: --write: nothing written: the measured amp_ref = "
     ), r.stderr

@@ -524,6 +524,13 @@ def add_parser(sub: Any) -> None:
     p.set_defaults(func=run)
 
 
+def _amp_figure(amp: float) -> str:
+    """An amp figure to 0.1 as the config takes it, in four significant figures past a
+    million: a reflectivity typed 1e-300 gives an amp_ref of 1e303, which is refused
+    but still reported, and should not print as 300 digits."""
+    return f"{amp:.1f}" if abs(amp) < 1e6 else f"{amp:.4g}"
+
+
 def report(
     cal: Calibration, args: argparse.Namespace, cfg: FilterConfig, sigma0_set: bool = False
 ) -> list[str]:
@@ -532,8 +539,8 @@ def report(
     out = [
         f"{cal.used} readings used, {cal.rejected} flagged by the sensor; median amp "
         f"{cal.median_amp:.0f}, median distance {cal.median_distance_m:.3f} m",
-        f"amp_ref = {cal.amp_ref:.1f} ± {cal.amp_ref_err:.1f}   (S = 1: R cos(angle) = 1 at "
-        f"2 m; this target's S = R cos(angle) (2 m / {args.distance:g} m)^2 = "
+        f"amp_ref = {_amp_figure(cal.amp_ref)} ± {_amp_figure(cal.amp_ref_err)}   (S = 1: "
+        f"R cos(angle) = 1 at 2 m; this target's S = R cos(angle) (2 m / {args.distance:g} m)^2 = "
         f"{cal.strength:.3g})",
     ]
     if sp.sd_m is not None and cal.c is not None:
