@@ -658,10 +658,10 @@ def _paced(speed: float | None) -> float:
     Raises:
         ValueError: None, zero, negative, infinite or NaN.
     """
-    if check_speed(speed) is None:
+    checked = check_speed(speed)
+    if checked is None:
         raise ValueError("Pacer needs a speed; use no pacing for as-fast-as-possible")
-    assert speed is not None
-    return speed
+    return checked
 
 
 class Pacer:
@@ -685,7 +685,7 @@ class Pacer:
         max_gap_s: float | None = 1.0,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
-        _paced(speed)
+        speed = _paced(speed)
         if max_gap_s is not None and max_gap_s < 0:
             raise ValueError(f"max_gap_s must be >= 0, got {max_gap_s}")
         self.speed = speed
@@ -726,7 +726,7 @@ class Pacer:
         Raises:
             ValueError: ``speed`` is zero, negative or not finite.
         """
-        _paced(speed)
+        speed = _paced(speed)
         if self._start_s is not None:
             now = self._clock()
             played_ns = min(self._offset_ns, max(0.0, (now - self._start_s) * 1e9 * self.speed))
